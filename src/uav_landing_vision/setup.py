@@ -1,0 +1,29 @@
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = "uav_landing_vision"
+
+setup(
+    name=package_name,
+    version="0.1.0",
+    packages=find_packages(exclude=["test", "tests"]),
+    package_data={package_name: ["render/shaders/*.glsl"]},
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
+        ("share/" + package_name, ["package.xml"]),
+        ("share/" + package_name + "/launch", glob("launch/*.py")),
+        ("share/" + package_name + "/models", glob("models/*")),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=True,
+    maintainer="uav-landing-vision maintainers",
+    maintainer_email="uav-landing-vision@example.org",
+    description="Monocular 6-DoF pose tracking of a fixed-wing UAV landing on a ship.",
+    license="Apache-2.0",
+    entry_points={
+        "console_scripts": [
+            "uav-landing = uav_landing_vision.cli:main",
+        ],
+    },
+)
