@@ -14,6 +14,9 @@ setup(
         ("share/" + package_name, ["package.xml"]),
         ("share/" + package_name + "/launch", glob("launch/*.py")),
         ("share/" + package_name + "/models", glob("models/*")),
+        # The repository's config/ folder, so that an installed package finds its defaults.
+        ("share/" + package_name + "/config", glob("../../config/*.yaml")),
+        ("share/" + package_name + "/config/scenarios", glob("../../config/scenarios/*.yaml")),
     ],
     install_requires=["setuptools"],
     zip_safe=True,

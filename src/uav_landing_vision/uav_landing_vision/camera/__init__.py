@@ -1,0 +1,20 @@
+"""The calibrated deck camera: projection, distortion (3.16)–(3.17), camera_info I/O."""
+
+from .camera_info import (
+    CameraInfoError,
+    camera_from_info_fields,
+    camera_info_fields,
+    load_camera_info_yaml,
+    save_camera_info_yaml,
+)
+from .model import DEFAULT_FRAME_ID, CameraModel
+
+__all__ = [
+    "DEFAULT_FRAME_ID",
+    "CameraInfoError",
+    "CameraModel",
+    "camera_from_info_fields",
+    "camera_info_fields",
+    "load_camera_info_yaml",
+    "save_camera_info_yaml",
+]

@@ -1,0 +1,114 @@
+"""ROS camera_info YAML files and ``sensor_msgs/CameraInfo`` fields ↔ :class:`CameraModel`.
+
+The YAML layout is the one written by ROS's camera calibrator (camera_calibration_parsers):
+``image_width``, ``image_height``, ``camera_name``, ``camera_matrix``, ``distortion_model``,
+``distortion_coefficients``, ``rectification_matrix``, ``projection_matrix``.
+"""
+
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from .model import DEFAULT_FRAME_ID, CameraModel
+
+SUPPORTED_DISTORTION = "plumb_bob"
+_YAML_KEYS = {
+    "image_width", "image_height", "camera_name", "camera_matrix", "distortion_model",
+    "distortion_coefficients", "rectification_matrix", "projection_matrix",
+}
+
+
+class CameraInfoError(ValueError):
+    """A camera calibration (file or message) that cannot describe this camera."""
+
+
+def _matrix(doc: dict, key: str, rows: int, cols: int, source: str) -> np.ndarray:
+    entry = doc.get(key)
+    if not isinstance(entry, dict) or "data" not in entry:
+        raise CameraInfoError(f"{source}: '{key}' must be a mapping with rows, cols and data")
+    data = np.asarray(entry["data"], dtype=float)
+    if data.size != rows * cols:
+        raise CameraInfoError(f"{source}: '{key}' needs {rows * cols} values, has {data.size}")
+    return data.reshape(rows, cols)
+
+
+def load_camera_info_yaml(path, frame_id: str = DEFAULT_FRAME_ID) -> CameraModel:
+    """Read a ROS camera_info YAML file; raise :class:`CameraInfoError` on anything malformed."""
+    path = Path(path)
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise CameraInfoError(f"cannot read camera calibration {path}: {exc}") from exc
+    if not isinstance(doc, dict):
+        raise CameraInfoError(f"{path}: not a camera_info YAML mapping")
+    unknown = set(doc) - _YAML_KEYS
+    if unknown:
+        raise CameraInfoError(f"{path}: unknown keys {sorted(unknown)}")
+    model = doc.get("distortion_model", SUPPORTED_DISTORTION)
+    if model != SUPPORTED_DISTORTION:
+        raise CameraInfoError(f"{path}: distortion model '{model}' is not supported (only {SUPPORTED_DISTORTION})")
+    K = _matrix(doc, "camera_matrix", 3, 3, str(path))
+    dist_entry = doc.get("distortion_coefficients", {"data": [0.0] * 5})
+    dist = np.asarray(dist_entry.get("data", []) if isinstance(dist_entry, dict) else [], dtype=float)
+    if "rectification_matrix" in doc:
+        R = _matrix(doc, "rectification_matrix", 3, 3, str(path))
+        if not np.allclose(R, np.eye(3)):
+            raise CameraInfoError(f"{path}: a rectification rotation (stereo) is not supported; it must be identity")
+    try:
+        return CameraModel(int(doc["image_width"]), int(doc["image_height"]), K, dist, frame_id)
+    except KeyError as exc:
+        raise CameraInfoError(f"{path}: missing {exc.args[0]}") from exc
+    except (TypeError, ValueError) as exc:
+        raise CameraInfoError(f"{path}: {exc}") from exc
+
+
+def save_camera_info_yaml(camera: CameraModel, path, camera_name: str = "deck_camera") -> None:
+    """Write ``camera`` as a ROS camera_info YAML file."""
+    fields = camera_info_fields(camera)
+
+    def block(rows, cols, data):
+        return {"rows": rows, "cols": cols, "data": [float(v) for v in data]}
+
+    doc = {
+        "image_width": camera.width,
+        "image_height": camera.height,
+        "camera_name": camera_name,
+        "camera_matrix": block(3, 3, fields["k"]),
+        "distortion_model": fields["distortion_model"],
+        "distortion_coefficients": block(1, 5, fields["d"]),
+        "rectification_matrix": block(3, 3, fields["r"]),
+        "projection_matrix": block(3, 4, fields["p"]),
+    }
+    Path(path).write_text(yaml.safe_dump(doc, sort_keys=False))
+
+
+def camera_info_fields(camera: CameraModel) -> dict:
+    """The fields of a ``sensor_msgs/CameraInfo`` message (lower-case names as in rclpy)."""
+    P = np.hstack([camera.K, np.zeros((3, 1))])
+    return {
+        "width": camera.width,
+        "height": camera.height,
+        "distortion_model": SUPPORTED_DISTORTION,
+        "d": camera.dist.tolist(),
+        "k": camera.K.ravel().tolist(),
+        "r": np.eye(3).ravel().tolist(),
+        "p": P.ravel().tolist(),
+    }
+
+
+def camera_from_info_fields(
+    width, height, distortion_model, d, k, r=None, frame_id: str = DEFAULT_FRAME_ID
+) -> CameraModel:
+    """Validate ``sensor_msgs/CameraInfo`` fields and build the camera; :class:`CameraInfoError` if unusable."""
+    if distortion_model not in (SUPPORTED_DISTORTION, ""):
+        raise CameraInfoError(f"distortion model '{distortion_model}' is not supported (only {SUPPORTED_DISTORTION})")
+    k = np.asarray(k, dtype=float)
+    if k.size != 9 or not np.any(k):
+        raise CameraInfoError("camera_info K is missing (all zeros means an uncalibrated camera)")
+    if r is not None and np.any(r) and not np.allclose(np.asarray(r, dtype=float).reshape(3, 3), np.eye(3)):
+        raise CameraInfoError("camera_info R must be identity (monocular camera)")
+    try:
+        return CameraModel(int(width), int(height), k.reshape(3, 3), np.asarray(d, dtype=float), frame_id)
+    except ValueError as exc:
+        raise CameraInfoError(str(exc)) from exc

@@ -1,0 +1,138 @@
+"""The deck camera: pinhole intrinsics (3.16) and radial/tangential distortion (3.17).
+
+Distortion coefficients follow OpenCV's ``plumb_bob`` order ``[k1, k2, p1, p2, k3]``, as in
+``sensor_msgs/CameraInfo``. Image coordinates are OpenCV's: ``(u, v)`` with integer values at
+pixel centres, u to the right, v down.
+"""
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+DEFAULT_FRAME_ID = "camera_optical_frame"
+
+
+@dataclass(frozen=True)
+class CameraModel:
+    """A calibrated camera; immutable. ``K`` is the 3×3 intrinsic matrix, ``dist`` the 5 coefficients."""
+
+    width: int
+    height: int
+    K: np.ndarray
+    dist: np.ndarray = field(default_factory=lambda: np.zeros(5))
+    frame_id: str = DEFAULT_FRAME_ID
+
+    def __post_init__(self):
+        K = np.array(self.K, dtype=float)
+        dist = np.array(self.dist, dtype=float).ravel()
+        if not (isinstance(self.width, (int, np.integer)) and isinstance(self.height, (int, np.integer))):
+            raise ValueError(f"camera width/height must be integers, got {self.width!r}, {self.height!r}")
+        if self.width <= 0 or self.height <= 0:
+            raise ValueError(f"camera size must be positive, got {self.width}x{self.height}")
+        if K.shape != (3, 3) or not np.all(np.isfinite(K)):
+            raise ValueError("camera matrix K must be a finite 3x3 matrix")
+        if K[0, 0] <= 0 or K[1, 1] <= 0 or K[1, 0] != 0 or K[2, 0] != 0 or K[2, 1] != 0 or K[2, 2] != 1:
+            raise ValueError(f"camera matrix K is not an intrinsic matrix [[fx,s,cx],[0,fy,cy],[0,0,1]]: {K.tolist()}")
+        if dist.size == 4:
+            dist = np.append(dist, 0.0)
+        if dist.size != 5 or not np.all(np.isfinite(dist)):
+            raise ValueError(f"distortion must be 4 or 5 finite plumb_bob coefficients, got {dist.size}")
+        K.setflags(write=False)
+        dist.setflags(write=False)
+        object.__setattr__(self, "width", int(self.width))
+        object.__setattr__(self, "height", int(self.height))
+        object.__setattr__(self, "K", K)
+        object.__setattr__(self, "dist", dist)
+
+    @property
+    def fx(self) -> float:
+        return float(self.K[0, 0])
+
+    @property
+    def fy(self) -> float:
+        return float(self.K[1, 1])
+
+    @property
+    def cx(self) -> float:
+        return float(self.K[0, 2])
+
+    @property
+    def cy(self) -> float:
+        return float(self.K[1, 2])
+
+    @property
+    def is_distorted(self) -> bool:
+        return bool(np.any(self.dist != 0.0))
+
+    def rectified(self) -> "CameraModel":
+        """The camera of the undistorted image: same intrinsics, no distortion."""
+        return CameraModel(self.width, self.height, self.K, np.zeros(5), self.frame_id)
+
+    def project_pinhole(self, points_cam: np.ndarray) -> np.ndarray:
+        """Pinhole projection (3.16) of camera-frame points ``(..., 3)`` to pixels ``(..., 2)``, no distortion."""
+        return self._to_pixels(_normalised(points_cam))
+
+    def project(self, points_cam: np.ndarray) -> np.ndarray:
+        """Projection with lens distortion (3.16)–(3.17): camera-frame points ``(..., 3)`` → raw-image pixels."""
+        return self._to_pixels(self.distort_normalised(_normalised(points_cam)))
+
+    def distort_normalised(self, xy: np.ndarray) -> np.ndarray:
+        """Radial and tangential distortion (3.17) of normalised image coordinates ``(..., 2)``."""
+        k1, k2, p1, p2, k3 = self.dist
+        x, y = xy[..., 0], xy[..., 1]
+        r2 = x * x + y * y
+        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+        yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+        return np.stack([xd, yd], axis=-1)
+
+    def backproject(self, uv: np.ndarray, depth: np.ndarray) -> np.ndarray:
+        """Camera-frame points at ``depth`` (Z, metres) of rectified-image pixels ``uv (..., 2)``."""
+        uv = np.asarray(uv, dtype=float)
+        depth = np.asarray(depth, dtype=float)
+        y = (uv[..., 1] - self.cy) / self.fy
+        x = (uv[..., 0] - self.cx - self.K[0, 1] * y) / self.fx
+        return np.stack([x * depth, y * depth, np.broadcast_to(depth, x.shape)], axis=-1)
+
+    def undistort_points(self, uv: np.ndarray) -> np.ndarray:
+        """Raw-image pixels ``(..., 2)`` → rectified-image pixels (same K), by OpenCV's iterative inverse."""
+        uv = np.asarray(uv, dtype=float)
+        flat = uv.reshape(-1, 1, 2)
+        out = cv2.undistortPoints(
+            flat, self.K, self.dist, R=None, P=self.K,
+            criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-10),
+        )
+        return out.reshape(uv.shape)
+
+    def undistortion_maps(self) -> tuple[np.ndarray, np.ndarray]:
+        """``cv2.remap`` maps from the raw image to the rectified image (same K, no rectification rotation)."""
+        return cv2.initUndistortRectifyMap(
+            self.K, self.dist, None, self.K, (self.width, self.height), cv2.CV_16SC2
+        )
+
+    def distortion_maps(self) -> tuple[np.ndarray, np.ndarray]:
+        """``cv2.remap`` float maps that turn a rectified image into the raw (distorted) image.
+
+        For each raw pixel they give the rectified pixel it sees, by the forward model (3.17)
+        after inverting the pixel to its normalised ray with OpenCV's iterative undistortion.
+        """
+        u, v = np.meshgrid(np.arange(self.width, dtype=float), np.arange(self.height, dtype=float))
+        rect = self.undistort_points(np.stack([u, v], axis=-1))
+        return rect[..., 0].astype(np.float32), rect[..., 1].astype(np.float32)
+
+    def _to_pixels(self, xy: np.ndarray) -> np.ndarray:
+        x, y = xy[..., 0], xy[..., 1]
+        return np.stack(
+            [self.fx * x + self.K[0, 1] * y + self.cx, self.fy * y + self.cy], axis=-1
+        )
+
+
+def _normalised(points_cam: np.ndarray) -> np.ndarray:
+    points_cam = np.asarray(points_cam, dtype=float)
+    if points_cam.shape[-1] != 3:
+        raise ValueError(f"points must have shape (..., 3), got {points_cam.shape}")
+    z = points_cam[..., 2:3]
+    if np.any(z <= 0.0):
+        raise ValueError("cannot project points at or behind the camera (Z <= 0)")
+    return points_cam[..., :2] / z

@@ -1,0 +1,141 @@
+"""Camera model against OpenCV (projectPoints, undistortPoints, undistort) and camera_info I/O."""
+
+import cv2
+import numpy as np
+import pytest
+
+from uav_landing_vision.camera import (
+    CameraInfoError,
+    CameraModel,
+    camera_from_info_fields,
+    camera_info_fields,
+    load_camera_info_yaml,
+    save_camera_info_yaml,
+)
+from uav_landing_vision.resources import config_path
+
+
+@pytest.fixture(scope="module")
+def camera():
+    return load_camera_info_yaml(config_path("camera.yaml"))
+
+
+@pytest.fixture
+def points(camera):
+    rng = np.random.default_rng(7)
+    z = rng.uniform(5.0, 100.0, 400)
+    uv = rng.uniform([0, 0], [camera.width, camera.height], size=(400, 2))
+    x = (uv[:, 0] - camera.cx) / camera.fx * z
+    y = (uv[:, 1] - camera.cy) / camera.fy * z
+    return np.stack([x, y, z], axis=-1)
+
+
+def test_default_calibration(camera):
+    assert (camera.width, camera.height) == (1280, 720)
+    assert camera.is_distorted
+    assert camera.dist.shape == (5,)
+
+
+def test_project_matches_cv2_project_points(camera, points):
+    expected, _ = cv2.projectPoints(points, np.zeros(3), np.zeros(3), camera.K, camera.dist)
+    np.testing.assert_allclose(camera.project(points), expected.reshape(-1, 2), atol=1e-9)
+    expected0, _ = cv2.projectPoints(points, np.zeros(3), np.zeros(3), camera.K, np.zeros(5))
+    np.testing.assert_allclose(camera.project_pinhole(points), expected0.reshape(-1, 2), atol=1e-9)
+
+
+def test_undistort_points_inverts_projection(camera, points):
+    raw = camera.project(points)
+    np.testing.assert_allclose(camera.undistort_points(raw), camera.project_pinhole(points), atol=1e-6)
+
+
+def test_backproject_inverts_pinhole(camera, points):
+    uv = camera.project_pinhole(points)
+    np.testing.assert_allclose(camera.backproject(uv, points[:, 2]), points, atol=1e-9)
+
+
+def test_undistortion_maps_match_cv2_undistort(camera):
+    rng = np.random.default_rng(3)
+    raw = cv2.GaussianBlur(rng.integers(0, 255, (camera.height, camera.width, 3), dtype=np.uint8), (9, 9), 3)
+    map1, map2 = camera.undistortion_maps()
+    ours = cv2.remap(raw, map1, map2, cv2.INTER_LINEAR)
+    expected = cv2.undistort(raw, camera.K, camera.dist)
+    inner = (slice(40, -40), slice(60, -60))  # borders differ only by the fill of unmapped pixels
+    diff = np.abs(ours[inner].astype(int) - expected[inner].astype(int))
+    assert np.percentile(diff, 99) <= 2
+
+
+def test_distortion_maps_invert_undistortion(camera):
+    """Rectified → raw (distortion maps) then raw → rectified recovers a smooth image."""
+    yy, xx = np.mgrid[0 : camera.height, 0 : camera.width].astype(np.float32)
+    rect = (127 + 100 * np.sin(xx / 37.0) * np.cos(yy / 23.0)).astype(np.float32)
+    raw = cv2.remap(rect, *camera.distortion_maps(), cv2.INTER_LINEAR)
+    back = cv2.remap(raw, *camera.undistortion_maps(), cv2.INTER_LINEAR)
+    inner = (slice(60, -60), slice(80, -80))
+    assert np.abs(back[inner] - rect[inner]).max() < 3.0
+    # A raw pixel sees the rectified pixel that the forward model maps onto it.
+    mapx, mapy = camera.distortion_maps()
+    pt = camera.backproject(np.array([mapx[100, 200], mapy[100, 200]]), 10.0)
+    np.testing.assert_allclose(camera.project(pt), [200, 100], atol=1e-3)
+
+
+def test_yaml_round_trip(camera, tmp_path):
+    path = tmp_path / "cam.yaml"
+    save_camera_info_yaml(camera, path)
+    again = load_camera_info_yaml(path)
+    np.testing.assert_array_equal(again.K, camera.K)
+    np.testing.assert_array_equal(again.dist, camera.dist)
+    assert (again.width, again.height) == (camera.width, camera.height)
+
+
+def test_camera_info_fields_round_trip(camera):
+    fields = camera_info_fields(camera)
+    assert len(fields["k"]) == 9 and len(fields["p"]) == 12 and len(fields["r"]) == 9
+    again = camera_from_info_fields(**{k: fields[k] for k in ("width", "height", "distortion_model", "d", "k", "r")})
+    np.testing.assert_array_equal(again.K, camera.K)
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("image_width: 1280\n", "camera_matrix"),
+        ("- not a mapping\n", "not a camera_info"),
+        ("image_width: 1280\nimage_height: 720\nbogus: 1\n", "unknown keys"),
+        (
+            "image_width: 1280\nimage_height: 720\ndistortion_model: equidistant\n"
+            "camera_matrix: {rows: 3, cols: 3, data: [1,0,0,0,1,0,0,0,1]}\n",
+            "not supported",
+        ),
+        ("image_width: 1280\nimage_height: 720\ncamera_matrix: {rows: 3, cols: 3, data: [1,2]}\n", "needs 9"),
+        (
+            "image_width: -5\nimage_height: 720\ncamera_matrix: {rows: 3, cols: 3, data: [900,0,1,0,900,1,0,0,1]}\n",
+            "positive",
+        ),
+        ("image_width: [1\n", "cannot read"),
+    ],
+)
+def test_bad_yaml_is_a_clear_error(tmp_path, text, message):
+    path = tmp_path / "bad.yaml"
+    path.write_text(text)
+    with pytest.raises(CameraInfoError, match=message):
+        load_camera_info_yaml(path)
+
+
+def test_bad_camera_info_fields():
+    with pytest.raises(CameraInfoError, match="uncalibrated"):
+        camera_from_info_fields(640, 480, "plumb_bob", [0] * 5, [0] * 9)
+    with pytest.raises(CameraInfoError, match="not supported"):
+        camera_from_info_fields(640, 480, "rational_polynomial", [0] * 8, [500, 0, 320, 0, 500, 240, 0, 0, 1])
+
+
+def test_projection_rejects_points_behind_camera(camera):
+    with pytest.raises(ValueError, match="behind"):
+        camera.project(np.array([0.0, 0.0, -1.0]))
+    with pytest.raises(ValueError, match="shape"):
+        camera.project(np.zeros((3, 2)))
+
+
+def test_camera_is_immutable(camera):
+    with pytest.raises(ValueError):
+        camera.K[0, 0] = 1.0
+    with pytest.raises(ValueError):
+        CameraModel(640, 480, np.eye(2))
