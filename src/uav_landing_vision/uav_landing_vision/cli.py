@@ -1,19 +1,34 @@
-"""The ``uav-landing`` command: one subcommand per offline job of the project."""
+"""The ``uav-landing`` command: one subcommand per offline job of the project.
+
+Each subsystem registers its subcommands in its own ``commands.py`` (``register(subparsers)``),
+importing heavy modules only inside the handlers so that ``uav-landing --help`` stays fast.
+"""
 
 import argparse
+import importlib
 import sys
 
+_COMMAND_MODULES = [
+    "uav_landing_vision.demo",
+    "uav_landing_vision.bench",
+]
 
-def _build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="uav-landing", description=__doc__)
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="uav-landing", description="UAV landing vision station tools.")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name in _COMMAND_MODULES:
+        importlib.import_module(name).register(sub)
     return parser
 
 
 def main(argv=None) -> int:
-    parser = _build_parser()
-    args = parser.parse_args(argv)
-    return int(args.run(args) or 0)
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":
