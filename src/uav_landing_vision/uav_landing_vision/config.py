@@ -1,0 +1,93 @@
+"""Component configuration: one dataclass per component, read from a node's YAML section.
+
+The files in ``config/`` are ROS 2 parameter files (``<node>: ros__parameters: {...}``), so the
+nodes (``--ros-args --params-file``) and the CLI read the same values. Unknown keys, missing
+sections and values of the wrong type are errors that name the file and the key.
+"""
+
+import dataclasses
+import types
+import typing
+from pathlib import Path
+
+import yaml
+
+
+class ConfigError(ValueError):
+    """A configuration file or value that cannot be used."""
+
+
+def load_node_parameters(path, node: str) -> dict:
+    """The ``ros__parameters`` mapping of ``node`` in a ROS 2 parameter file."""
+    path = Path(path)
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise ConfigError(f"cannot read parameter file {path}: {exc}") from exc
+    if not isinstance(doc, dict) or node not in doc:
+        raise ConfigError(f"{path}: no section '{node}'")
+    section = doc[node]
+    if not isinstance(section, dict) or not isinstance(section.get("ros__parameters"), dict):
+        raise ConfigError(f"{path}: section '{node}' must hold a 'ros__parameters' mapping")
+    return section["ros__parameters"]
+
+
+def from_mapping(cls, values: dict, where: str = ""):
+    """Build dataclass ``cls`` from ``values``; unknown keys and wrong types raise :class:`ConfigError`.
+
+    Nested dataclass fields take nested mappings; tuple and list fields take YAML lists.
+    Ints are accepted where floats are expected. The dataclass's ``__post_init__`` does the
+    range checks.
+    """
+    prefix = f"{where}: " if where else ""
+    if not isinstance(values, dict):
+        raise ConfigError(f"{prefix}expected a mapping for {cls.__name__}, got {type(values).__name__}")
+    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
+    unknown = sorted(set(values) - set(fields))
+    if unknown:
+        raise ConfigError(f"{prefix}unknown key(s) {unknown} for {cls.__name__}; known: {sorted(fields)}")
+    hints = typing.get_type_hints(cls)
+    kwargs = {}
+    for name, value in values.items():
+        key = f"{where}.{name}" if where else name
+        kwargs[name] = _convert(hints[name], value, key)
+    try:
+        return cls(**kwargs)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"{prefix}{exc}") from exc
+
+
+def _convert(hint, value, key: str):
+    origin = typing.get_origin(hint)
+    if dataclasses.is_dataclass(hint):
+        return from_mapping(hint, value, key)
+    if origin in (typing.Union, types.UnionType):
+        options = [a for a in typing.get_args(hint) if a is not type(None)]
+        if value is None and len(options) < len(typing.get_args(hint)):
+            return None
+        return _convert(options[0], value, key)
+    if origin is typing.Literal:
+        if value not in typing.get_args(hint):
+            raise ConfigError(f"{key}: {value!r} is not one of {list(typing.get_args(hint))}")
+        return value
+    if origin in (tuple, list):
+        if not isinstance(value, (list, tuple)):
+            raise ConfigError(f"{key}: expected a list, got {value!r}")
+        args = typing.get_args(hint)
+        if origin is tuple and args and args[-1] is not Ellipsis:
+            if len(value) != len(args):
+                raise ConfigError(f"{key}: expected {len(args)} values, got {len(value)}")
+            return tuple(_convert(a, v, key) for a, v in zip(args, value))
+        item = args[0] if args else typing.Any
+        return origin(_convert(item, v, key) for v in value)
+    if hint is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{key}: expected a number, got {value!r}")
+        return float(value)
+    if hint is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{key}: expected an integer, got {value!r}")
+        return value
+    if hint in (str, bool) and not isinstance(value, hint):
+        raise ConfigError(f"{key}: expected {hint.__name__}, got {value!r}")
+    return value

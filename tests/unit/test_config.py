@@ -1,0 +1,68 @@
+"""Configuration loading: ROS 2 parameter files into validated dataclasses."""
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import pytest
+
+from uav_landing_vision.config import ConfigError, from_mapping, load_node_parameters
+
+
+@dataclass(frozen=True)
+class Inner:
+    sigma: float = 1.0
+    names: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class Outer:
+    count: int = 3
+    mode: Literal["a", "b"] = "a"
+    enabled: bool = True
+    inner: Inner = field(default_factory=Inner)
+    size: tuple[int, int] = (64, 64)
+    label: str | None = None
+
+    def __post_init__(self):
+        if self.count < 1:
+            raise ValueError(f"count must be >= 1, got {self.count}")
+
+
+def test_nested_values_and_coercion():
+    cfg = from_mapping(Outer, {"count": 5, "mode": "b", "inner": {"sigma": 2, "names": ["x", "y"]}, "size": [32, 16]})
+    assert cfg == Outer(count=5, mode="b", inner=Inner(sigma=2.0, names=("x", "y")), size=(32, 16))
+    assert isinstance(cfg.inner.sigma, float)
+    assert from_mapping(Outer, {"label": None}).label is None
+
+
+@pytest.mark.parametrize(
+    "values, message",
+    [
+        ({"cuont": 5}, r"unknown key\(s\) \['cuont'\]"),
+        ({"count": "5"}, "count: expected an integer"),
+        ({"count": True}, "count: expected an integer"),
+        ({"mode": "c"}, "mode: 'c' is not one of"),
+        ({"inner": {"sigma": "big"}}, "inner.sigma: expected a number"),
+        ({"inner": {"bogus": 1}}, "inner: unknown key"),
+        ({"size": [1, 2, 3]}, "size: expected 2 values"),
+        ({"enabled": "yes"}, "enabled: expected bool"),
+        ({"count": 0}, "count must be >= 1"),
+    ],
+)
+def test_bad_values_are_named(values, message):
+    with pytest.raises(ConfigError, match=message):
+        from_mapping(Outer, values)
+
+
+def test_parameter_file_sections(tmp_path):
+    path = tmp_path / "p.yaml"
+    path.write_text("tracker:\n  ros__parameters:\n    count: 7\n")
+    assert load_node_parameters(path, "tracker") == {"count": 7}
+    with pytest.raises(ConfigError, match="no section 'detector'"):
+        load_node_parameters(path, "detector")
+    path.write_text("tracker:\n  count: 7\n")
+    with pytest.raises(ConfigError, match="ros__parameters"):
+        load_node_parameters(path, "tracker")
+    path.write_text("tracker: [\n")
+    with pytest.raises(ConfigError, match="cannot read"):
+        load_node_parameters(path, "tracker")
