@@ -1,0 +1,128 @@
+"""The GCS bridge core: tracker pose in, MAVLink and landing guidance out; the node only adapts.
+
+Call ``on_pose`` / ``on_tracker_state`` from the subscriptions and ``tick`` from a timer at
+``mavlink.rate_hz``; publish ``TickResult.guidance`` as ``uav/landing_guidance``.
+"""
+
+import math
+from dataclasses import dataclass
+
+from pymavlink.dialects.v20 import common as mav2
+
+from .config import GcsBridgeConfig
+from .frames import DeckGeometry, LandingPose, camera_to_landing, euler_covariance
+from .landing import LandingGuidance, Stage, StageMachine, cone_geometry
+from .mavlink import MavlinkSender
+
+TRACKER_LOST, TRACKER_ACQUIRING, TRACKER_TRACKING = 0, 1, 2  # uav_landing_msgs/TrackerStatus.state
+HEARTBEAT_PERIOD_S = 1.0
+
+
+@dataclass(frozen=True)
+class TickResult:
+    guidance: LandingGuidance
+    sent: tuple[str, ...]  # MAVLink message types sent by this tick, in order
+
+
+class GcsBridge:
+    """Decides what to send and when: a pose is sent once, only while fresh and tracked.
+
+    A pose is fresh while ``now_s − stamp_s <= stale_timeout_s``; the tracker must report
+    TRACKING (its latest state wins; LOST drops the held pose). Stale or lost → no position
+    message at all and, in LAND, GO_AROUND at the next tick (within 0.5 s, checked by the
+    config). Stage changes go to the GCS as STATUSTEXT.
+    """
+
+    def __init__(self, config: GcsBridgeConfig, sender: MavlinkSender | None = None):
+        self._cfg = config
+        self._deck = DeckGeometry.from_mount(config.camera_position, config.camera_rpy, config.net_position)
+        self._sender = sender if sender is not None else MavlinkSender(config.mavlink)
+        self._machine = StageMachine(config.cone, config.go_around_hold_s)
+        self._tracker_state = TRACKER_LOST
+        self._pose: LandingPose | None = None
+        self._stamp = -math.inf
+        self._pose_sent = False
+        self._last_position_send = -math.inf
+        self._last_heartbeat = -math.inf
+
+    @property
+    def stage(self) -> Stage:
+        return self._machine.stage
+
+    def on_pose(self, stamp_s: float, position_cam, quat_cam, covariance, now_s: float) -> bool:
+        """Take a tracker pose (FLU body in the camera optical frame, ROS 6×6 covariance).
+
+        Malformed input raises ValueError and changes nothing. Returns False, ignoring the
+        pose, when it is older than the one held or already stale at ``now_s``.
+        """
+        if not math.isfinite(stamp_s):
+            raise ValueError(f"pose stamp must be finite, got {stamp_s!r}")
+        pose = camera_to_landing(position_cam, quat_cam, covariance, self._deck)
+        euler_covariance(pose)  # rejects a pose whose covariance cannot be expressed in MAVLink
+        if stamp_s <= self._stamp or now_s - stamp_s > self._cfg.stale_timeout_s:
+            return False
+        self._pose, self._stamp, self._pose_sent = pose, stamp_s, False
+        return True
+
+    def on_tracker_state(self, state: int) -> None:
+        """Latest ``TrackerStatus.state``; LOST discards the held pose."""
+        if state not in (TRACKER_LOST, TRACKER_ACQUIRING, TRACKER_TRACKING):
+            raise ValueError(f"unknown tracker state {state!r}")
+        self._tracker_state = state
+        if state == TRACKER_LOST:
+            self._pose = None
+
+    def reset(self) -> None:
+        """Operator reset of the stage machine (e.g. after recovery from the net)."""
+        self._machine.reset()
+
+    def tick(self, now_s: float) -> TickResult:
+        fresh = (
+            self._pose is not None
+            and self._tracker_state == TRACKER_TRACKING
+            and now_s - self._stamp <= self._cfg.stale_timeout_s
+        )
+        geometry = cone_geometry(self._pose.position, self._cfg.cone) if fresh else None
+        before = self._machine.stage
+        stage = self._machine.update(now_s, geometry)
+        sent: list[str] = []
+        if now_s - self._last_heartbeat >= HEARTBEAT_PERIOD_S:
+            self._sender.send_heartbeat()
+            self._last_heartbeat = now_s
+            sent.append("HEARTBEAT")
+        if stage != before:
+            self._sender.send_statustext(status_text(stage, geometry), status_severity(stage))
+            sent.append("STATUSTEXT")
+        period = 1.0 / self._cfg.mavlink.rate_hz
+        if fresh and not self._pose_sent and now_s - self._last_position_send >= 0.999 * period:
+            sent += self._sender.send_pose(self._pose, self._stamp)
+            self._pose_sent = True
+            self._last_position_send = now_s
+        nan = math.nan
+        guidance = LandingGuidance(
+            stamp_s=self._stamp if fresh else now_s,
+            stage=stage,
+            range=geometry.range if geometry else nan,
+            glide_slope_angle=geometry.glide_slope_angle if geometry else nan,
+            glide_slope_error=geometry.glide_slope_error if geometry else nan,
+            lateral_angle=geometry.lateral_angle if geometry else nan,
+            inside_cone=bool(geometry and geometry.inside_cone),
+        )
+        return TickResult(guidance, tuple(sent))
+
+    def close(self) -> None:
+        self._sender.close()
+
+
+def status_severity(stage: Stage) -> int:
+    return mav2.MAV_SEVERITY_WARNING if stage is Stage.GO_AROUND else mav2.MAV_SEVERITY_NOTICE
+
+
+def status_text(stage: Stage, geometry) -> str:
+    """The STATUSTEXT for a stage change, e.g. ``VISION LAND r=42.0m gs=+0.3 lat=-1.2deg``."""
+    if geometry is None:
+        return f"VISION {stage.name} (no track)"
+    return (
+        f"VISION {stage.name} r={geometry.range:.1f}m gs={math.degrees(geometry.glide_slope_error):+.1f}"
+        f" lat={math.degrees(geometry.lateral_angle):+.1f}deg"
+    )
