@@ -1,0 +1,61 @@
+"""Loading a CAD model (OBJ/STL/PLY) through trimesh, with unit and sanity checks.
+
+Decision on open meshes: a mesh that is not watertight (or not consistently wound) still
+gives correct silhouettes when drawn without back-face culling, so it is accepted with a
+``UserWarning``; ``Mesh.is_closed`` is then False and the renderer turns culling off.
+"""
+
+import warnings
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from .mesh import Mesh, MeshError
+
+UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
+SUFFIXES = {".obj", ".stl", ".ply"}
+MIN_EXTENT_M, MAX_EXTENT_M = 0.1, 20.0
+
+
+def load_mesh(path, unit: str = "m") -> Mesh:
+    """Read a UAV mesh, already in the body frame (FLU, origin at the CG), in ``unit``."""
+    path = Path(path)
+    if unit not in UNITS:
+        raise MeshError(f"unknown unit {unit!r}; choose one of {sorted(UNITS)}")
+    if not path.is_file():
+        raise MeshError(f"mesh file not found: {path}")
+    if path.suffix.lower() not in SUFFIXES:
+        raise MeshError(f"unsupported mesh format {path.suffix!r} ({path}); use OBJ, STL or PLY")
+    try:
+        loaded = trimesh.load(path, force="mesh", process=True)
+    except Exception as exc:  # trimesh raises many types for corrupt files
+        raise MeshError(f"cannot read mesh file {path}: {exc}") from exc
+    if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0 or len(loaded.vertices) == 0:
+        raise MeshError(f"mesh file {path} holds no triangles")
+    vertices = np.asarray(loaded.vertices, dtype=float)
+    if not np.all(np.isfinite(vertices)):
+        raise MeshError(f"mesh file {path} has non-finite vertex coordinates")
+    extent = float(np.ptp(vertices, axis=0).max()) * UNITS[unit]
+    if not MIN_EXTENT_M <= extent <= MAX_EXTENT_M:
+        raise MeshError(_size_message(path, unit, extent))
+    if loaded.is_watertight:
+        trimesh.repair.fix_normals(loaded)  # consistent, outward winding
+    mesh = Mesh(np.asarray(loaded.vertices) * UNITS[unit], np.asarray(loaded.faces))
+    if not mesh.is_closed:
+        warnings.warn(
+            f"mesh {path} is not closed (watertight and consistently wound); "
+            "silhouettes will be rendered without back-face culling",
+            stacklevel=2,
+        )
+    return mesh
+
+
+def _size_message(path: Path, unit: str, extent: float) -> str:
+    raw = extent / UNITS[unit]
+    fitting = [u for u, s in UNITS.items() if MIN_EXTENT_M <= raw * s <= MAX_EXTENT_M]
+    hint = f"; the file was probably in {' or '.join(repr(u) for u in fitting)}" if fitting else ""
+    return (
+        f"mesh {path} is {extent:.4g} m across in unit {unit!r}, implausible for a UAV "
+        f"(expected {MIN_EXTENT_M}–{MAX_EXTENT_M} m){hint}"
+    )
