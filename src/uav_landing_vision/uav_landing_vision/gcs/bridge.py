@@ -35,7 +35,7 @@ class GcsBridge:
 
     def __init__(self, config: GcsBridgeConfig, sender: MavlinkSender | None = None):
         self._cfg = config
-        self._deck = DeckGeometry.from_mount(config.camera_position, config.camera_rpy, config.net_position)
+        self._deck = DeckGeometry.from_mount(config.camera.position_m, config.camera.rpy, config.net_position_m)
         self._sender = sender if sender is not None else MavlinkSender(config.mavlink)
         self._machine = StageMachine(config.cone, config.go_around_hold_s)
         self._tracker_state = TRACKER_LOST

@@ -62,7 +62,7 @@ def lateral_angle(position, approach_course: float) -> float:
 
 def inside_cone(rng: float, alpha: float, beta1: float, cone: ConeConfig) -> bool:
     """Fig. 1.5: α2 ≤ α ≤ α1, |β1| ≤ β2/2 (β2 the full opening), within d of the landing point."""
-    return rng <= cone.distance and cone.alpha2 <= alpha <= cone.alpha1 and abs(beta1) <= 0.5 * cone.beta2
+    return rng <= cone.distance_m and cone.alpha2 <= alpha <= cone.alpha1 and abs(beta1) <= 0.5 * cone.beta2
 
 
 def cone_geometry(position, cone: ConeConfig) -> ConeGeometry:
@@ -77,7 +77,7 @@ class StageMachine:
     """The trajectory state machine of Fig. 1.4 (right).
 
     LOITER → APPROACH when a pose is tracked; APPROACH → LAND inside the cone; LAND →
-    NO_RETURN within ``no_return_distance``; LAND → GO_AROUND on track loss or on leaving
+    NO_RETURN within ``no_return_distance_m``; LAND → GO_AROUND on track loss or on leaving
     the cone; GO_AROUND → LOITER after ``go_around_hold_s``. A loss during APPROACH returns to
     LOITER (the UAV has not started its descent). NO_RETURN holds until ``reset()``.
     """
@@ -103,7 +103,7 @@ class StageMachine:
             elif geometry.inside_cone:
                 s = Stage.LAND
         elif s is Stage.LAND:
-            if geometry is not None and geometry.range <= self._cone.no_return_distance:
+            if geometry is not None and geometry.range <= self._cone.no_return_distance_m:
                 s = Stage.NO_RETURN
             elif geometry is None or not geometry.inside_cone:
                 s = Stage.GO_AROUND

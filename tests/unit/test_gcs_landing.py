@@ -1,0 +1,270 @@
+"""Landing cone (Fig. 1.5), stage machine (Fig. 1.4) and the bridge's send decisions on scripted flights."""
+
+import dataclasses
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from test_gcs_frames import camera_pose_from_truth
+
+from uav_landing_vision.gcs import GcsBridge, Stage, StageMachine, cone_geometry, load_config
+from uav_landing_vision.gcs.bridge import TRACKER_ACQUIRING, TRACKER_LOST, TRACKER_TRACKING
+from uav_landing_vision.gcs.landing import glide_slope_angle, lateral_angle
+
+CONFIG = load_config(Path(__file__).parents[2] / "config" / "gcs_bridge.yaml")
+CONE = CONFIG.cone  # α1 10°, α2 3°, glide slope 6°, β2 20°, d 50 m, no return 10 m, course 0
+GAMMA = math.radians(6.0)
+COV = np.diag([0.01, 0.01, 0.25, 1e-4, 1e-4, 1e-4])
+
+
+def on_axis(rng, lateral_m=0.0, gamma=GAMMA):
+    """Landing-frame position ``rng`` metres out along the landing axis at elevation ``gamma``."""
+    return np.array([-rng * math.cos(gamma), lateral_m, -rng * math.sin(gamma)])
+
+
+class RecordingSender:
+    """Stands in for MavlinkSender: records what the bridge decided to send."""
+
+    def __init__(self):
+        self.poses, self.texts, self.heartbeats = [], [], 0
+
+    def send_pose(self, pose, stamp_s):
+        self.poses.append((stamp_s, pose))
+        return ["ODOMETRY"]
+
+    def send_heartbeat(self):
+        self.heartbeats += 1
+
+    def send_statustext(self, text, severity):
+        self.texts.append((text, severity))
+
+    def close(self):
+        pass
+
+
+def feed(bridge, t, p_land, rpy=(0.0, -GAMMA, 0.0), state=TRACKER_TRACKING):
+    cam = CONFIG.camera
+    p_cam, q_cam = camera_pose_from_truth(cam.position_m, cam.rpy, CONFIG.net_position_m, p_land, rpy)
+    bridge.on_tracker_state(state)
+    return bridge.on_pose(t, p_cam, q_cam, COV, now_s=t + 0.02)
+
+
+def fly(bridge, path, t_end, frame_dt=1 / 30, ticks_every=3, latency=0.03):
+    """Feed ``path(t)`` (a landing-frame position, or a tracker state when there is no pose) at
+    30 Hz and tick at 10 Hz; returns [(t, TickResult)]."""
+    out = []
+    for k in range(int(round(t_end / frame_dt)) + 1):
+        t = k * frame_dt
+        sample = path(t)
+        if isinstance(sample, np.ndarray):
+            feed(bridge, t, sample)
+        elif sample is not None:
+            bridge.on_tracker_state(sample)
+        if k % ticks_every == 0:
+            out.append((t, bridge.tick(t + latency)))
+    return out
+
+
+def stages(results):
+    seq = [results[0][1].guidance.stage]
+    for _, r in results[1:]:
+        if r.guidance.stage != seq[-1]:
+            seq.append(r.guidance.stage)
+    return seq
+
+
+def first_tick(results, stage):
+    return next(t for t, r in results if r.guidance.stage == stage)
+
+
+def approach(rng0=120.0, speed=20.0, acquire_at=100.0):
+    """Straight-in on the glide slope; the tracker acquires the UAV at ``acquire_at`` m."""
+
+    def path(t):
+        rng = rng0 - speed * t
+        if rng > acquire_at:
+            return TRACKER_ACQUIRING
+        return on_axis(rng)
+
+    return path
+
+
+def range_at(t, rng0=120.0, speed=20.0):
+    return rng0 - speed * t
+
+
+@pytest.fixture
+def bridge():
+    sender = RecordingSender()
+    b = GcsBridge(CONFIG, sender=sender)
+    b.sender = sender
+    return b
+
+
+# --- cone geometry ---------------------------------------------------------------------------
+
+
+def test_angles_on_hand_built_positions():
+    assert glide_slope_angle([-50.0, 0.0, -50.0 * math.tan(GAMMA)]) == pytest.approx(GAMMA, abs=1e-15)
+    assert lateral_angle([-50.0, 5.0, -5.0], 0.0) == pytest.approx(math.atan2(5, 50), abs=1e-15)  # starboard +
+    assert lateral_angle([-50.0, -5.0, -5.0], 0.0) == pytest.approx(-math.atan2(5, 50), abs=1e-15)
+    # Course 90° (flying to starboard, approaching from port): right of the path is aft (−x).
+    assert lateral_angle([0.0, -50.0, -5.0], math.pi / 2) == pytest.approx(0.0, abs=1e-15)
+    assert lateral_angle([-5.0, -50.0, -5.0], math.pi / 2) == pytest.approx(math.atan2(5, 50), abs=1e-15)
+    assert abs(lateral_angle([50.0, 0.0, -5.0], 0.0)) == pytest.approx(math.pi)  # ahead of the net
+
+
+def test_cone_boundaries():
+    inside = cone_geometry(on_axis(49.9), CONE)
+    assert inside.inside_cone and inside.range == pytest.approx(49.9)
+    assert inside.glide_slope_error == pytest.approx(0.0, abs=1e-15)
+    assert not cone_geometry(on_axis(50.1), CONE).inside_cone  # beyond d
+    assert not cone_geometry(on_axis(30.0, gamma=math.radians(10.01)), CONE).inside_cone  # above α1
+    assert not cone_geometry(on_axis(30.0, gamma=math.radians(2.99)), CONE).inside_cone  # below α2
+    assert cone_geometry(on_axis(30.0, gamma=math.radians(9.99)), CONE).inside_cone
+    lat = 30.0 * math.cos(GAMMA) * math.tan(math.radians(9.99))
+    assert cone_geometry(on_axis(30.0, lateral_m=lat), CONE).inside_cone
+    assert not cone_geometry(on_axis(30.0, lateral_m=-1.003 * lat), CONE).inside_cone  # |β1| > β2/2
+
+
+# --- scripted flights through the bridge -----------------------------------------------------
+
+
+def test_nominal_landing(bridge):
+    def path(t):
+        return TRACKER_LOST if range_at(t) < 3.0 else approach()(t)  # the UAV hits the net at ~3 m
+
+    results = fly(bridge, path, t_end=6.0)
+    assert stages(results) == [Stage.LOITER, Stage.APPROACH, Stage.LAND, Stage.NO_RETURN]
+    assert range_at(first_tick(results, Stage.APPROACH)) <= 100.0
+    assert 50.0 - 20.0 * 0.1 <= range_at(first_tick(results, Stage.LAND)) <= 50.0
+    assert 10.0 - 20.0 * 0.1 <= range_at(first_tick(results, Stage.NO_RETURN)) <= 10.0
+    assert [t for t, _ in bridge.sender.texts] and "NO_RETURN" in bridge.sender.texts[-1][0]
+    last_pose_stamp = bridge.sender.poses[-1][0]
+    assert range_at(last_pose_stamp) >= 3.0  # nothing sent once the track is lost
+    assert all(len(text) <= 50 for text, _ in bridge.sender.texts)
+
+
+def test_guidance_matches_truth(bridge):
+    fly(bridge, approach(), t_end=3.0)
+    rng = 36.0
+    feed(bridge, 10.0, on_axis(rng, lateral_m=2.0, gamma=math.radians(7.0)))
+    g = bridge.tick(10.05).guidance
+    p = on_axis(rng, lateral_m=2.0, gamma=math.radians(7.0))
+    assert g.stamp_s == 10.0 and g.stage == Stage.LAND and g.inside_cone
+    assert g.range == pytest.approx(np.linalg.norm(p), abs=1e-9)
+    assert g.glide_slope_angle == pytest.approx(math.atan2(-p[2], math.hypot(p[0], p[1])), abs=1e-9)
+    assert g.glide_slope_error == pytest.approx(g.glide_slope_angle - GAMMA, abs=1e-12)
+    assert g.lateral_angle == pytest.approx(math.atan2(2.0, -p[0]), abs=1e-9)
+
+
+def test_loss_of_track_at_30_m_goes_around_within_half_a_second(bridge):
+    t_loss = (120.0 - 30.0) / 20.0
+
+    def path(t):
+        return None if t > t_loss else approach()(t)  # poses stop; the tracker says nothing
+
+    results = fly(bridge, path, t_end=t_loss + 1.0)
+    assert stages(results) == [Stage.LOITER, Stage.APPROACH, Stage.LAND, Stage.GO_AROUND]
+    last_pose = bridge.sender.poses[-1][0]
+    assert last_pose <= t_loss
+    assert 0.0 < first_tick(results, Stage.GO_AROUND) + 0.03 - last_pose <= 0.5
+    ga = [r for t, r in results if r.guidance.stage == Stage.GO_AROUND]
+    assert all(math.isnan(r.guidance.range) and not r.guidance.inside_cone for r in ga)
+    text, severity = bridge.sender.texts[-1]
+    assert "GO_AROUND" in text and severity == 4  # MAV_SEVERITY_WARNING
+    # GO_AROUND → LOITER after the hold; a fresh track then starts a new APPROACH.
+    assert bridge.tick(t_loss + 0.5 + CONFIG.go_around_hold_s).guidance.stage == Stage.LOITER
+
+
+def test_tracker_lost_goes_around_at_the_next_tick(bridge):
+    t_loss = (120.0 - 30.0) / 20.0
+    results = fly(bridge, lambda t: TRACKER_LOST if t > t_loss else approach()(t), t_end=t_loss + 0.5)
+    assert first_tick(results, Stage.GO_AROUND) - t_loss <= 0.1 + 1e-9
+    assert bridge.sender.poses[-1][0] <= t_loss
+
+
+def test_loss_inside_no_return_stays_no_return(bridge):
+    t_loss = (120.0 - 6.0) / 20.0
+    results = fly(bridge, lambda t: None if t > t_loss else approach()(t), t_end=t_loss + 2.0)
+    assert stages(results)[-1] == Stage.NO_RETURN
+    assert bridge.sender.poses[-1][0] <= t_loss
+    bridge.reset()
+    assert bridge.stage == Stage.LOITER
+
+
+def test_leaving_the_cone_goes_around(bridge):
+    def path(t):
+        rng = range_at(t)
+        drift = max(0.0, 40.0 - rng) * 0.5  # from 40 m the UAV slides to starboard
+        return on_axis(rng, lateral_m=drift) if rng <= 100.0 else TRACKER_ACQUIRING
+
+    results = fly(bridge, path, t_end=5.0)
+    assert stages(results) == [Stage.LOITER, Stage.APPROACH, Stage.LAND, Stage.GO_AROUND]
+    t_ga = first_tick(results, Stage.GO_AROUND)
+    g = dict(results)[t_ga].guidance
+    assert not g.inside_cone and g.lateral_angle > CONE.beta2 / 2
+    assert range_at(t_ga) > CONE.no_return_distance_m
+
+
+def test_approach_outside_the_cone_never_lands(bridge):
+    steep = math.radians(15.0)
+    results = fly(bridge, lambda t: on_axis(range_at(t), gamma=steep), t_end=5.0)
+    assert stages(results) == [Stage.APPROACH]  # tracked from the first tick, never inside the cone
+    assert min(range_at(t) for t, _ in results) <= 20.0  # well inside d = 50 m
+
+
+def test_each_pose_is_sent_once_and_at_most_at_the_rate(bridge):
+    fly(bridge, lambda t: on_axis(range_at(t)), t_end=2.0, frame_dt=0.2, ticks_every=1)
+    stamps = [s for s, _ in bridge.sender.poses]
+    assert len(stamps) == len(set(stamps)) == 11  # 5 Hz poses, 5 Hz ticks: each once
+    sender = RecordingSender()
+    fast = GcsBridge(CONFIG, sender=sender)
+    fast.sender = sender
+    fly(fast, lambda t: on_axis(range_at(t)), t_end=2.0, ticks_every=1)  # 30 Hz poses and ticks
+    stamps = [s for s, _ in sender.poses]
+    assert len(stamps) == 20 or len(stamps) == 21
+    assert min(np.diff(stamps)) >= 0.1 - 1e-9
+
+
+def test_stale_and_out_of_order_poses_are_ignored(bridge):
+    cam = CONFIG.camera
+    p_cam, q_cam = camera_pose_from_truth(cam.position_m, cam.rpy, CONFIG.net_position_m, on_axis(40.0), (0, 0, 0))
+    bridge.on_tracker_state(TRACKER_TRACKING)
+    assert not bridge.on_pose(1.0, p_cam, q_cam, COV, now_s=1.0 + CONFIG.stale_timeout_s + 0.01)
+    assert bridge.on_pose(2.0, p_cam, q_cam, COV, now_s=2.0)
+    assert not bridge.on_pose(1.5, p_cam, q_cam, COV, now_s=2.0)
+
+
+def test_bad_pose_is_rejected_and_nothing_is_sent(bridge):
+    cam = CONFIG.camera
+    p_cam, q_cam = camera_pose_from_truth(cam.position_m, cam.rpy, CONFIG.net_position_m, on_axis(40.0), (0, 0, 0))
+    bridge.on_tracker_state(TRACKER_TRACKING)
+    for args in [
+        (1.0, p_cam * np.nan, q_cam, COV),
+        (1.0, p_cam, q_cam * 1.5, COV),
+        (1.0, p_cam, q_cam, -COV),
+        (math.nan, p_cam, q_cam, COV),
+    ]:
+        with pytest.raises(ValueError):
+            bridge.on_pose(*args, now_s=1.0)
+    result = bridge.tick(1.01)
+    assert result.sent == ("HEARTBEAT",) and not bridge.sender.poses
+    with pytest.raises(ValueError, match="tracker state"):
+        bridge.on_tracker_state(7)
+
+
+def test_stage_machine_needs_a_track_to_leave_loiter():
+    machine = StageMachine(CONE, go_around_hold_s=1.0)
+    assert machine.update(0.0, None) == Stage.LOITER
+    assert machine.update(0.1, cone_geometry(on_axis(40.0), CONE)) == Stage.APPROACH
+    assert machine.update(0.2, None) == Stage.LOITER  # lost before the descent: loiter again
+
+
+def test_dataclass_config_is_what_the_bridge_uses():
+    cfg = dataclasses.replace(CONFIG, cone=dataclasses.replace(CONE, distance_m=30.0))
+    sender = RecordingSender()
+    b = GcsBridge(cfg, sender=sender)
+    fly(b, lambda t: on_axis(40.0), t_end=0.5)
+    assert b.stage == Stage.APPROACH  # 40 m is outside a 30 m cone
