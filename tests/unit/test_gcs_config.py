@@ -1,0 +1,81 @@
+"""The gcs_bridge parameter file and its validation."""
+
+import math
+from pathlib import Path
+
+import pytest
+import yaml
+
+from uav_landing_vision.gcs import config_from_parameters, load_config
+
+SHIPPED = Path(__file__).parents[2] / "config" / "gcs_bridge.yaml"
+
+
+def shipped_params() -> dict:
+    return yaml.safe_load(SHIPPED.read_text())["gcs_bridge"]["ros__parameters"]
+
+
+def test_shipped_file_loads_in_radians():
+    cfg = load_config(SHIPPED)
+    assert cfg.cone.distance_m == 50.0
+    assert cfg.cone.alpha1 == pytest.approx(math.radians(cfg.cone.alpha1_deg))
+    assert cfg.camera.rpy[2] == pytest.approx(math.pi)
+    assert cfg.mavlink.messages == ("ODOMETRY",) and cfg.mavlink.signing_key_file == ""
+
+
+def test_dotted_ros_names_equal_nested():
+    def flatten(d, prefix=""):
+        out = {}
+        for k, v in d.items():
+            out.update(flatten(v, f"{prefix}{k}.") if isinstance(v, dict) else {prefix + k: v})
+        return out
+
+    assert config_from_parameters(flatten(shipped_params())) == load_config(SHIPPED)
+
+
+def edit(path: str, value):
+    params = shipped_params()
+    *groups, leaf = path.split(".")
+    node = params
+    for g in groups:
+        node = node[g]
+    if value is KeyError:
+        del node[leaf]
+    else:
+        node[leaf] = value
+    return params
+
+
+@pytest.mark.parametrize(
+    "path, value, message",
+    [
+        ("cone.alpha_one_deg", 5.0, r"unknown key.*alpha_one_deg"),
+        ("mavlink.rate", 5.0, r"unknown key.*rate"),
+        ("stale_timeout_s", KeyError, "stale_timeout_s"),
+        ("mavlink.rate_hz", "fast", "mavlink.rate_hz: expected a number"),
+        ("mavlink.system_id", 1.5, "mavlink.system_id: expected an integer"),
+        ("mavlink.messages", ["ODOMETRY", "GPS_INPUT"], "'GPS_INPUT' is not one of"),
+        ("mavlink.messages", ["ODOMETRY", "ODOMETRY"], "distinct"),
+        ("mavlink.messages", [], "non-empty"),
+        ("mavlink.odometry_frame", "LOCAL_ENU", "'LOCAL_ENU' is not one of"),
+        ("mavlink.system_id", 0, "1..255"),
+        ("mavlink.connection", " ", "connection"),
+        ("camera.position_m", [0.0, 1.0], "expected 3 values"),
+        ("net_position_m", [0.0, math.nan, 0.0], "finite"),
+        ("cone.alpha2_deg", 7.0, "alpha2_deg < glide_slope_deg"),
+        ("cone.beta2_deg", 180.0, "beta2_deg"),
+        ("cone.no_return_distance_m", 60.0, "no_return_distance_m < distance_m"),
+        ("stale_timeout_s", 0.45, "go-around advisory deadline"),
+        ("go_around_hold_s", -1.0, "go_around_hold_s"),
+    ],
+)
+def test_invalid_parameters_are_named(path, value, message):
+    with pytest.raises(ValueError, match=message):
+        config_from_parameters(edit(path, value))
+
+
+def test_missing_section(tmp_path):
+    path = tmp_path / "p.yaml"
+    path.write_text("tracker:\n  ros__parameters: {}\n")
+    with pytest.raises(ValueError, match="no section 'gcs_bridge'"):
+        load_config(path)
