@@ -16,6 +16,7 @@ from .mesh import Mesh, MeshError
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
 SUFFIXES = {".obj", ".stl", ".ply"}
 MIN_EXTENT_M, MAX_EXTENT_M = 0.1, 20.0
+TYPICAL_EXTENT_M = 2.0
 
 
 def load_mesh(path, unit: str = "m") -> Mesh:
@@ -28,7 +29,7 @@ def load_mesh(path, unit: str = "m") -> Mesh:
     if path.suffix.lower() not in SUFFIXES:
         raise MeshError(f"unsupported mesh format {path.suffix!r} ({path}); use OBJ, STL or PLY")
     try:
-        loaded = trimesh.load(path, force="mesh", process=True)
+        loaded = trimesh.load(path, force="mesh", process=False)
     except Exception as exc:  # trimesh raises many types for corrupt files
         raise MeshError(f"cannot read mesh file {path}: {exc}") from exc
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0 or len(loaded.vertices) == 0:
@@ -36,6 +37,8 @@ def load_mesh(path, unit: str = "m") -> Mesh:
     vertices = np.asarray(loaded.vertices, dtype=float)
     if not np.all(np.isfinite(vertices)):
         raise MeshError(f"mesh file {path} has non-finite vertex coordinates")
+    loaded.merge_vertices()  # STL stores each triangle's corners separately
+    vertices = np.asarray(loaded.vertices, dtype=float)
     extent = float(np.ptp(vertices, axis=0).max()) * UNITS[unit]
     if not MIN_EXTENT_M <= extent <= MAX_EXTENT_M:
         raise MeshError(_size_message(path, unit, extent))
@@ -54,7 +57,9 @@ def load_mesh(path, unit: str = "m") -> Mesh:
 def _size_message(path: Path, unit: str, extent: float) -> str:
     raw = extent / UNITS[unit]
     fitting = [u for u, s in UNITS.items() if MIN_EXTENT_M <= raw * s <= MAX_EXTENT_M]
-    hint = f"; the file was probably in {' or '.join(repr(u) for u in fitting)}" if fitting else ""
+    # The unit that makes the model closest (in ratio) to a typical small UAV's size.
+    best = min(fitting, key=lambda u: abs(np.log(raw * UNITS[u] / TYPICAL_EXTENT_M)), default=None)
+    hint = f"; the file was probably in {best!r}" if best else ""
     return (
         f"mesh {path} is {extent:.4g} m across in unit {unit!r}, implausible for a UAV "
         f"(expected {MIN_EXTENT_M}–{MAX_EXTENT_M} m){hint}"
