@@ -94,7 +94,8 @@ class GcsBridgeConfig:
     def __post_init__(self):
         if not all(math.isfinite(v) for v in (*self.camera.position_m, *self.camera.rpy_deg, *self.net_position_m)):
             raise ValueError("camera and net positions and angles must be finite")
-        if not (self.stale_timeout_s > 0.0 and self.stale_timeout_s + 1.0 / self.mavlink.rate_hz <= GO_AROUND_DEADLINE_S):
+        worst_delay = self.stale_timeout_s + 1.0 / self.mavlink.rate_hz  # staleness + one tick
+        if not (self.stale_timeout_s > 0.0 and worst_delay <= GO_AROUND_DEADLINE_S):
             raise ValueError(
                 f"need stale_timeout_s > 0 and stale_timeout_s + 1/mavlink.rate_hz <= {GO_AROUND_DEADLINE_S} s "
                 "(the go-around advisory deadline)"
