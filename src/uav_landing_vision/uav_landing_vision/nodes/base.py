@@ -1,0 +1,140 @@
+"""What every node of the graph shares: configuration from ROS parameters, ``/diagnostics``, ``main()``.
+
+Parameters come from ``--ros-args --params-file config/<node>.yaml`` (or ``-p key:=value``);
+nested YAML groups arrive as dotted names (``cone.alpha1_deg``) and are nested again before
+validation, so the node reads the same file, with the same checks, as the CLI.
+"""
+
+import array
+import dataclasses
+import sys
+from collections import Counter
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.clock import Clock, ClockType
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+
+from ..config import ConfigError, from_mapping
+from .qos import RELIABLE_QOS
+
+DIAGNOSTICS_PERIOD_S = 1.0
+# Parameters every rclpy node declares itself; they are not part of a node's configuration.
+ROS_PARAMETERS = frozenset({"use_sim_time", "start_type_description_service"})
+
+
+class LandingNode(Node):
+    """A node configured from its parameters that reports its counters on ``/diagnostics`` at 1 Hz.
+
+    Subclasses count messages with ``self.counters[...] += 1`` and reject a bad message with
+    :meth:`drop`, which logs the reason, counts it and never raises.
+    """
+
+    def __init__(self, name: str, **kwargs):
+        super().__init__(name, automatically_declare_parameters_from_overrides=True, **kwargs)
+        self.counters = Counter(received=0, dropped=0, published=0)
+        self.last_error = ""
+        self._dropped_at_last_report = 0
+        self._diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", RELIABLE_QOS)
+        # Steady time: diagnostics keep flowing when use_sim_time is set and /clock is paused.
+        self.create_timer(DIAGNOSTICS_PERIOD_S, self.publish_diagnostics, clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    def parameter_mapping(self) -> dict:
+        """The node's own parameters as a nested mapping (dotted names → groups, arrays → lists)."""
+        nested: dict = {}
+        for name, param in self.get_parameters_by_prefix("").items():
+            if name in ROS_PARAMETERS:
+                continue
+            value = param.value
+            if isinstance(value, array.array):
+                value = list(value)
+            *groups, leaf = name.split(".")
+            level = nested
+            for group in groups:
+                level = level.setdefault(group, {})
+            level[leaf] = value
+        return nested
+
+    def load_config(self, cls):
+        """Validate the parameters into dataclass ``cls`` (defaults fill what is not given), then
+        declare the defaults that were not given so that every effective value is a parameter.
+
+        Raises :class:`ConfigError` naming the key of an unknown or invalid parameter.
+        """
+        config = from_mapping(cls, self.parameter_mapping(), where=f"{self.get_name()} parameters")
+        for name, value in _flatten(dataclasses.asdict(config)):
+            if not self.has_parameter(name) and _is_parameter_value(value):
+                self.declare_parameter(name, list(value) if isinstance(value, tuple) else value)
+        return config
+
+    def drop(self, reason: str) -> None:
+        """Log why a message is dropped (at most once a second per node) and count it."""
+        self.counters["dropped"] += 1
+        self.last_error = reason
+        self.get_logger().error(f"dropped: {reason}", throttle_duration_sec=1.0)
+
+    def publish_diagnostics(self) -> None:
+        """One ``DiagnosticStatus``: WARN when messages were dropped since the last report, else OK."""
+        dropped_now = self.counters["dropped"] - self._dropped_at_last_report
+        self._dropped_at_last_report = self.counters["dropped"]
+        status = DiagnosticStatus(
+            level=DiagnosticStatus.WARN if dropped_now else DiagnosticStatus.OK,
+            name=self.get_fully_qualified_name(),
+            message=f"dropped {dropped_now} in the last {DIAGNOSTICS_PERIOD_S:g} s: {self.last_error}" if dropped_now else "ok",
+            hardware_id=self.get_name(),
+            values=[KeyValue(key=k, value=str(v)) for k, v in sorted(self.counters.items())]
+            + [KeyValue(key="last_error", value=self.last_error)],
+        )
+        msg = DiagnosticArray(status=[status])
+        msg.header.stamp = self.get_clock().now().to_msg()
+        self._diagnostics.publish(msg)
+
+
+def stamp_ns(stamp) -> int:
+    """A ``builtin_interfaces/Time`` as integer nanoseconds (the key of exact-time matching)."""
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+
+def run_node(factory, args=None, run=None) -> int:
+    """Initialise rclpy, build the node, run it until shutdown; the body of every node's ``main()``.
+
+    ``run(node, executor) -> int`` replaces the default spin (the bag player plays and returns).
+    A :class:`ConfigError` while building the node is a start-up failure: logged, exit code 2.
+    Ctrl-C / SIGTERM end the node cleanly with exit code 0.
+    """
+    rclpy.init(args=args)
+    executor = SingleThreadedExecutor()
+    node = None
+    try:
+        node = factory()
+        executor.add_node(node)
+        if run is not None:
+            return run(node, executor)
+        executor.spin()
+        return 0
+    except ConfigError as exc:
+        print(f"[FATAL] cannot start: {exc}", file=sys.stderr, flush=True)
+        return 2
+    except (KeyboardInterrupt, ExternalShutdownException):
+        return 0
+    finally:
+        executor.shutdown()
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+
+
+def _flatten(mapping: dict, prefix: str = ""):
+    for key, value in mapping.items():
+        if isinstance(value, dict):
+            yield from _flatten(value, f"{prefix}{key}.")
+        else:
+            yield f"{prefix}{key}", value
+
+
+def _is_parameter_value(value) -> bool:
+    """Whether rclpy can declare ``value`` with its type inferred (not None, not an empty list)."""
+    if isinstance(value, (list, tuple)):
+        return len(value) > 0
+    return isinstance(value, (bool, int, float, str))

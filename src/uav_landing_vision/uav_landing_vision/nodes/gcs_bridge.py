@@ -1,0 +1,89 @@
+"""``gcs_bridge``: tracker pose → MAVLink to the GCS/autopilot and ``uav/landing_guidance``.
+
+Subscribes ``uav/pose`` (PoseWithCovarianceStamped) and ``uav/tracker_status`` (TrackerStatus),
+both reliable; every ``1 / mavlink.rate_hz`` seconds of node time (sim time with
+``use_sim_time``) it ticks the core (``gcs.GcsBridge``: landing cone, stage machine, MAVLink)
+and publishes its ``LandingGuidance`` (frame ``landing``: x bow, y starboard, z down, origin at
+the net). Parameters: ``config/gcs_bridge.yaml``, validated by ``gcs.config_from_parameters``.
+A malformed pose (NaN, non-unit quaternion, bad covariance) or an unknown tracker state is
+logged and dropped; no position is sent for it.
+"""
+
+import sys
+
+from geometry_msgs.msg import PoseWithCovarianceStamped
+from uav_landing_msgs.msg import LandingGuidance, TrackerStatus
+
+from ..config import ConfigError
+from ..gcs import GcsBridge, config_from_parameters
+from .base import LandingNode, run_node, stamp_ns
+from .qos import RELIABLE_QOS
+
+LANDING_FRAME_ID = "landing"
+
+
+class GcsBridgeNode(LandingNode):
+    def __init__(self, **kwargs):
+        super().__init__("gcs_bridge", **kwargs)
+        try:
+            self.config = config_from_parameters(self.parameter_mapping())
+        except ValueError as exc:
+            raise ConfigError(f"gcs_bridge parameters: {exc}") from exc
+        try:
+            self._bridge = GcsBridge(self.config)
+        except (OSError, ValueError) as exc:
+            raise ConfigError(f"mavlink: cannot open '{self.config.mavlink.connection}': {exc}") from exc
+        self._guidance = self.create_publisher(LandingGuidance, "uav/landing_guidance", RELIABLE_QOS)
+        self.create_subscription(PoseWithCovarianceStamped, "uav/pose", self._on_pose, RELIABLE_QOS)
+        self.create_subscription(TrackerStatus, "uav/tracker_status", self._on_status, RELIABLE_QOS)
+        self.create_timer(1.0 / self.config.mavlink.rate_hz, self._tick)
+        self.get_logger().info(f"MAVLink {self.config.mavlink.messages} to {self.config.mavlink.connection}")
+
+    def _now_s(self) -> float:
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    def _on_pose(self, msg: PoseWithCovarianceStamped) -> None:
+        self.counters["received"] += 1
+        p, q = msg.pose.pose.position, msg.pose.pose.orientation
+        try:
+            taken = self._bridge.on_pose(
+                stamp_ns(msg.header.stamp) * 1e-9, (p.x, p.y, p.z), (q.x, q.y, q.z, q.w),
+                msg.pose.covariance, self._now_s(),
+            )
+        except ValueError as exc:
+            self.drop(f"uav/pose rejected: {exc}")
+            return
+        if not taken:
+            self.counters["stale_poses"] += 1
+
+    def _on_status(self, msg: TrackerStatus) -> None:
+        self.counters["status_received"] += 1
+        try:
+            self._bridge.on_tracker_state(msg.state)
+        except ValueError as exc:
+            self.drop(f"uav/tracker_status rejected: {exc}")
+
+    def _tick(self) -> None:
+        result = self._bridge.tick(self._now_s())
+        g = result.guidance
+        msg = LandingGuidance(
+            stage=int(g.stage), range=g.range, glide_slope_angle=g.glide_slope_angle,
+            glide_slope_error=g.glide_slope_error, lateral_angle=g.lateral_angle, inside_cone=g.inside_cone,
+        )
+        msg.header.frame_id = LANDING_FRAME_ID
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(round(g.stamp_s * 1e9), 1_000_000_000)
+        self._guidance.publish(msg)
+        self.counters["published"] += 1
+        self.counters["mavlink_sent"] += len(result.sent)
+
+    def destroy_node(self):
+        self._bridge.close()
+        super().destroy_node()
+
+
+def main(args=None) -> int:
+    return run_node(GcsBridgeNode, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,106 @@
+"""``undistort``: ``camera/image_raw`` → ``camera/image_rect`` by the calibrated lens model (3.16)–(3.17).
+
+Subscribes ``camera/image_raw`` and ``camera/camera_info`` (sensor-data QoS); publishes
+``camera/image_rect`` (same header, same encoding) and, with the same header,
+``camera/camera_info_rect`` (same K, zero distortion). The remap tables are built once per
+distinct calibration. Parameters (``config/undistort.yaml``):
+
+- ``interpolation``: ``nearest`` | ``linear`` | ``cubic``.
+- ``camera_info_file``: a camera_info YAML (``config/camera.yaml`` form) for cameras that
+  publish no ``camera_info``; when set, the node uses it and does not subscribe to
+  ``camera/camera_info``. Relative paths are relative to the working directory.
+
+Dropped (logged, counted on ``/diagnostics``): images before any calibration, images whose
+size differs from the calibration's, unsupported encodings, malformed data, and unusable
+``camera_info`` messages (the previous calibration stays in use).
+"""
+
+import sys
+from dataclasses import dataclass
+from typing import Literal
+
+import cv2
+from sensor_msgs.msg import CameraInfo, Image
+
+from ..camera import CameraInfoError, camera_from_info_fields, camera_info_fields, load_camera_info_yaml
+from ..config import ConfigError
+from .base import LandingNode, run_node
+from .image import ImageError, image_to_numpy, numpy_to_image
+from .qos import SENSOR_QOS
+
+_INTERPOLATION = {"nearest": cv2.INTER_NEAREST, "linear": cv2.INTER_LINEAR, "cubic": cv2.INTER_CUBIC}
+
+
+@dataclass(frozen=True)
+class UndistortConfig:
+    interpolation: Literal["nearest", "linear", "cubic"] = "linear"
+    camera_info_file: str = ""  # calibration YAML used instead of the camera_info topic; "" = topic
+
+
+class Undistort(LandingNode):
+    def __init__(self, **kwargs):
+        super().__init__("undistort", **kwargs)
+        self.config = self.load_config(UndistortConfig)
+        self._camera = None
+        self._maps = None
+        self._info_key = None
+        self._image_pub = self.create_publisher(Image, "camera/image_rect", SENSOR_QOS)
+        self._info_pub = self.create_publisher(CameraInfo, "camera/camera_info_rect", SENSOR_QOS)
+        if self.config.camera_info_file:
+            try:
+                self._use_camera(load_camera_info_yaml(self.config.camera_info_file))
+            except CameraInfoError as exc:
+                raise ConfigError(f"camera_info_file: {exc}") from exc
+        else:
+            # Created before the image subscription: when both are ready, camera_info is taken first.
+            self.create_subscription(CameraInfo, "camera/camera_info", self._on_camera_info, SENSOR_QOS)
+        self.create_subscription(Image, "camera/image_raw", self._on_image, SENSOR_QOS)
+
+    def _use_camera(self, camera) -> None:
+        self._camera = camera
+        self._maps = camera.undistortion_maps()
+        self._rect_info = camera_info_fields(camera.rectified())
+        self.get_logger().info(
+            f"calibration {camera.width}x{camera.height}, fx={camera.fx:.1f} fy={camera.fy:.1f}, "
+            f"distortion {list(camera.dist)}: remap tables built"
+        )
+
+    def _on_camera_info(self, msg: CameraInfo) -> None:
+        self.counters["camera_info_received"] += 1
+        key = (msg.width, msg.height, msg.distortion_model, tuple(msg.d), tuple(msg.k), tuple(msg.r))
+        if key == self._info_key:
+            return
+        try:
+            camera = camera_from_info_fields(msg.width, msg.height, msg.distortion_model, msg.d, msg.k, msg.r)
+        except CameraInfoError as exc:
+            self.drop(f"camera_info rejected: {exc}")
+            return
+        self._info_key = key
+        self._use_camera(camera)
+
+    def _on_image(self, msg: Image) -> None:
+        self.counters["received"] += 1
+        camera = self._camera
+        if camera is None:
+            self.drop("image before any camera_info")
+            return
+        if (msg.width, msg.height) != (camera.width, camera.height):
+            self.drop(f"image is {msg.width}x{msg.height} but the calibration is {camera.width}x{camera.height}")
+            return
+        try:
+            raw = image_to_numpy(msg)
+        except ImageError as exc:
+            self.drop(str(exc))
+            return
+        rect = cv2.remap(raw, *self._maps, _INTERPOLATION[self.config.interpolation])
+        self._image_pub.publish(numpy_to_image(rect, msg.encoding, msg.header))
+        self._info_pub.publish(CameraInfo(header=msg.header, **self._rect_info))
+        self.counters["published"] += 1
+
+
+def main(args=None) -> int:
+    return run_node(Undistort, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,236 @@
+"""Shared node pieces (image conversion, QoS, parameters → config, /diagnostics), and the
+in-process rclpy harness and bag/image helpers the other ``test_node_*`` modules import."""
+
+import time
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+import pytest
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import ReliabilityPolicy
+from rclpy.serialization import serialize_message
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.typesys import Stores, get_typestore
+from sensor_msgs.msg import CameraInfo, Image
+
+from uav_landing_vision.camera import CameraModel, camera_info_fields
+from uav_landing_vision.config import ConfigError
+from uav_landing_vision.nodes.base import LandingNode
+from uav_landing_vision.nodes.image import ImageError, image_to_numpy, numpy_to_image
+from uav_landing_vision.nodes.qos import RELIABLE_QOS, SENSOR_QOS, qos_for_type
+
+SPIN_TIMEOUT_S = 30.0  # generous: discovery takes seconds and other jobs share the 2 cores
+SMALL_CAMERA = CameraModel(40, 30, np.array([[36.0, 0.0, 19.6], [0.0, 36.0, 14.8], [0.0, 0.0, 1.0]]), np.array([-0.25, 0.08, 0.001, -0.002, 0.0]))
+
+
+class RosHarness:
+    """A private rclpy context (own DDS domain), a probe node and one executor for nodes under test."""
+
+    def __init__(self, domain_id: int):
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=domain_id)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.probe = Node("test_probe", context=self.context)
+        self.executor.add_node(self.probe)
+        self._nodes = [self.probe]
+
+    def add(self, node):
+        self.executor.add_node(node)
+        self._nodes.append(node)
+        return node
+
+    def spin_until(self, predicate, timeout: float = SPIN_TIMEOUT_S) -> bool:
+        deadline = time.monotonic() + timeout
+        while not predicate():
+            if time.monotonic() > deadline:
+                return False
+            self.executor.spin_once(timeout_sec=0.05)
+        return True
+
+    def collect(self, msg_type, topic: str, qos) -> list:
+        """A subscription of the probe that appends every message to the returned list."""
+        received = []
+        self.probe.create_subscription(msg_type, topic, received.append, qos)
+        return received
+
+    def close(self):
+        for node in reversed(self._nodes):
+            node.destroy_node()
+        self.executor.shutdown()
+        self.context.try_shutdown()
+
+
+@pytest.fixture
+def ros(ros_domain_id):
+    harness = RosHarness(ros_domain_id)
+    yield harness
+    harness.close()
+
+
+def rgb_frame(camera: CameraModel, seed: int = 0) -> np.ndarray:
+    return np.random.default_rng(seed).integers(0, 256, size=(camera.height, camera.width, 3), dtype=np.uint8)
+
+
+def image_msg(pixels: np.ndarray, encoding: str, sec: int = 1, nanosec: int = 0, frame_id: str = "camera_optical_frame", pad: int = 0) -> Image:
+    """An Image of ``pixels``, optionally with ``pad`` bytes of row padding."""
+    height, width = pixels.shape[:2]
+    rows = pixels.reshape(height, -1)
+    padded = np.concatenate([rows, np.full((height, pad), 0xEE, np.uint8)], axis=1) if pad else rows
+    msg = Image(height=height, width=width, encoding=encoding, step=padded.shape[1], data=padded.tobytes())
+    msg.header.stamp.sec, msg.header.stamp.nanosec, msg.header.frame_id = sec, nanosec, frame_id
+    return msg
+
+
+def camera_info_msg(camera: CameraModel, sec: int = 1, nanosec: int = 0) -> CameraInfo:
+    msg = CameraInfo(**camera_info_fields(camera))
+    msg.header.stamp.sec, msg.header.stamp.nanosec, msg.header.frame_id = sec, nanosec, camera.frame_id
+    return msg
+
+
+def write_bag(path, entries, storage=StoragePlugin.MCAP):
+    """A rosbag2 bag of ``entries`` = [(topic, type name, bag time ns, message or raw bytes)], in order."""
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    with Writer(path, version=9, storage_plugin=storage) as writer:
+        connections = {}
+        for topic, type_name, t_ns, msg in entries:
+            if topic not in connections:
+                connections[topic] = writer.add_connection(topic, type_name, typestore=typestore)
+            writer.write(connections[topic], t_ns, msg if isinstance(msg, bytes) else serialize_message(msg))
+    return path
+
+
+def frame_entries(camera: CameraModel, count: int, period_ns: int = 33_000_000, image_first: bool = True):
+    """Bag entries of ``count`` frames: image and camera_info sharing each stamp (image first by default)."""
+    entries = []
+    for i in range(count):
+        t = 1_000_000_000 + i * period_ns
+        sec, nanosec = divmod(t, 1_000_000_000)
+        image = ("/camera/image_raw", "sensor_msgs/msg/Image", t, image_msg(rgb_frame(camera, i), "rgb8", sec, nanosec))
+        info = ("/camera/camera_info", "sensor_msgs/msg/CameraInfo", t, camera_info_msg(camera, sec, nanosec))
+        entries += [image, info] if image_first else [info, image]
+    return entries
+
+
+# --- image conversion -------------------------------------------------------------------------
+
+@pytest.mark.parametrize("encoding", ["rgb8", "bgr8", "mono8"])
+@pytest.mark.parametrize("pad", [0, 3])
+@pytest.mark.parametrize("bigendian", [0, 1])
+def test_image_round_trip_honours_step_padding(encoding, pad, bigendian):
+    rng = np.random.default_rng(1)
+    shape = (5, 7) if encoding == "mono8" else (5, 7, 3)
+    pixels = rng.integers(0, 256, size=shape, dtype=np.uint8)
+    msg = image_msg(pixels, encoding, pad=pad)
+    msg.is_bigendian = bigendian  # one-byte channels: no byte order to apply
+    np.testing.assert_array_equal(image_to_numpy(msg), pixels)
+    back = numpy_to_image(image_to_numpy(msg), encoding, msg.header)
+    assert (back.step, back.width, back.height, back.encoding, back.header) == (pixels[0].size, 7, 5, encoding, msg.header)
+    np.testing.assert_array_equal(image_to_numpy(back), pixels)
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ({"encoding": "rgba8"}, "unsupported image encoding 'rgba8'"),
+        ({"encoding": "16UC1"}, "unsupported image encoding '16UC1'"),
+        ({"step": 20}, "step 20 is shorter than one row"),
+        ({"height": 6}, "expected step x height"),
+        ({"data": bytes(10)}, "image data has 10 bytes"),
+        ({"width": 0, "height": 0, "step": 0, "data": b""}, "empty image"),
+    ],
+)
+def test_unusable_images_raise_a_clear_error(change, message):
+    msg = image_msg(np.zeros((5, 7, 3), np.uint8), "rgb8")
+    for key, value in change.items():
+        setattr(msg, key, value)
+    with pytest.raises(ImageError, match=message):
+        image_to_numpy(msg)
+
+
+def test_numpy_to_image_rejects_arrays_that_do_not_fit_the_encoding():
+    with pytest.raises(ImageError, match="rgb8 needs a uint8 array of 3 dimensions"):
+        numpy_to_image(np.zeros((4, 4), np.uint8), "rgb8", image_msg(np.zeros((1, 1), np.uint8), "mono8").header)
+    with pytest.raises(ImageError, match="mono8 needs a uint8 array"):
+        numpy_to_image(np.zeros((4, 4), np.float32), "mono8", Image().header)
+    with pytest.raises(ImageError, match="unsupported image encoding 'yuv422'"):
+        numpy_to_image(np.zeros((4, 4, 2), np.uint8), "yuv422", Image().header)
+
+
+def test_qos_images_best_effort_everything_else_reliable_depth_10():
+    assert SENSOR_QOS.reliability == ReliabilityPolicy.BEST_EFFORT
+    assert qos_for_type("sensor_msgs/msg/Image") is SENSOR_QOS
+    assert qos_for_type("sensor_msgs/msg/CameraInfo") is SENSOR_QOS
+    for name in ("uav_landing_msgs/msg/PoseHypotheses", "geometry_msgs/msg/PoseWithCovarianceStamped", "geometry_msgs/msg/PoseStamped"):
+        profile = qos_for_type(name)
+        assert profile is RELIABLE_QOS and profile.reliability == ReliabilityPolicy.RELIABLE and profile.depth >= 10
+
+
+# --- parameters → config, diagnostics -------------------------------------------------------
+
+@dataclass(frozen=True)
+class _Inner:
+    gain: float = 1.5
+    names: tuple[str, ...] = ("a", "b")
+
+
+@dataclass(frozen=True)
+class _Config:
+    mode: Literal["fast", "slow"] = "fast"
+    count: int = 3
+    inner: _Inner = _Inner()
+
+
+class _Probe(LandingNode):
+    def __init__(self, **kwargs):
+        super().__init__("config_probe", **kwargs)
+        self.config = self.load_config(_Config)
+
+
+def test_config_from_params_file_nested_groups_and_defaults(ros, tmp_path):
+    params = tmp_path / "probe.yaml"
+    params.write_text("config_probe:\n  ros__parameters:\n    count: 7\n    inner:\n      gain: 2\n")
+    node = ros.add(_Probe(context=ros.context, cli_args=["--ros-args", "--params-file", str(params)]))
+    assert node.config == _Config(count=7, inner=_Inner(gain=2.0))
+    # Every effective value is a declared parameter, defaults included.
+    assert node.get_parameter("mode").value == "fast"
+    assert list(node.get_parameter("inner.names").value) == ["a", "b"]
+
+
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        (Parameter("mode", value="medium"), "mode: 'medium' is not one of"),
+        (Parameter("count", value="three"), "count: expected an integer"),
+        (Parameter("inner.gain", value=True), "inner.gain: expected a number"),
+        (Parameter("colour", value=1), r"unknown key\(s\) \['colour'\]"),
+    ],
+)
+def test_bad_parameter_fails_start_up_naming_the_key(ros, override, message):
+    with pytest.raises(ConfigError, match=message):
+        _Probe(context=ros.context, parameter_overrides=[override])
+
+
+def test_diagnostics_report_counters_and_the_last_error(ros):
+    diagnostics = []
+    ros.probe.create_subscription(DiagnosticArray, "/diagnostics", diagnostics.append, RELIABLE_QOS)
+    node = ros.add(_Probe(context=ros.context))
+    node.counters["received"] += 2
+    node.drop("bad thing")
+
+    def report():
+        for array in diagnostics:
+            for status in array.status:
+                if status.hardware_id == "config_probe":
+                    return status
+        return None
+
+    assert ros.spin_until(lambda: report() is not None)
+    status = report()
+    values = {kv.key: kv.value for kv in status.values}
+    assert status.level == DiagnosticStatus.WARN and "bad thing" in status.message
+    assert (values["received"], values["dropped"], values["published"], values["last_error"]) == ("2", "1", "0", "bad thing")
