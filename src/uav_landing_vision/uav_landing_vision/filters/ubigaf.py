@@ -1,0 +1,179 @@
+"""Unscented Bingham–Gauss Filter (UBiGaF, §5.3.2), vectorised over a batch of M filters.
+
+The state ``r = [q, ω]`` is Bingham–Gauss distributed (C.11) with parameters ``m_ω`` (C.13),
+``P_ω`` (C.14), ``P_q`` (C.15), ``P_qω`` (C.16). Antipodal symmetry (C.17) is handled by taking
+every quaternion in the hemisphere of the distribution's mode, where ``P_qω`` keeps its sign.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..geometry import omega_quat, quat_canonical, quat_conjugate, quat_from_rodrigues, quat_multiply, rodrigues_from_quat
+from . import bingham
+from .ubif import _concentration
+from .ukf import _spd, _take
+
+N_SIGMA = 13  # 2r + 2s + 1 with r = s = 3 (Appendix E)
+
+
+@dataclass(frozen=True)
+class UBiGaFState:
+    """Mode ``q (M, 4)``, ``m_w (M, 3)``, ``p_w (M, 3, 3)``, ``p_q (M, 4, 4)``, ``p_qw (M, 4, 3)``.
+
+    After a prediction ``sig_q (M, 13, 4)``, ``sig_w (M, 13, 3)`` and ``weights (M, 13)`` hold
+    the propagated sigma points for the update.
+    """
+
+    q: np.ndarray
+    m_w: np.ndarray
+    p_w: np.ndarray
+    p_q: np.ndarray
+    p_qw: np.ndarray
+    sig_q: np.ndarray | None = None
+    sig_w: np.ndarray | None = None
+    weights: np.ndarray | None = None
+
+    def take(self, idx) -> "UBiGaFState":
+        return _take(self, idx)
+
+
+def _align(q: np.ndarray, ref: np.ndarray) -> np.ndarray:
+    """``q`` or ``−q``, whichever lies in the hemisphere of ``ref`` (C.17)."""
+    return np.where(np.sum(q * ref, axis=-1, keepdims=True) < 0.0, -q, q)
+
+
+def canonical_sigma_points(f: np.ndarray):
+    """Canonical points (E.1)–(E.7): quaternion part ``(..., 13, 4)``, unit Euclidean part ``(13, 3)``,
+    weights ``(..., 13)`` and the scale ``δ (..., 1)``.
+
+    ``f (..., 4)`` are the Bingham moments, ascending with the mode last. One point of each
+    antipodal pair is kept with the pair's weight, so (E.10), (E.12)–(E.15) double and the
+    weights sum to one; ``δ`` (E.9) makes the Euclidean part unit-covariance.
+    """
+    r = s = 3
+    f4 = f[..., 3:4]
+    w_g = f4 / N_SIGMA  # each of the six ω points (E.10)
+    w_b = f[..., :3] + (1.0 - 1.0 / N_SIGMA - 2.0 * r / N_SIGMA) * f4 / s  # (E.12)–(E.14)
+    alpha = np.arcsin(np.sqrt(np.clip(f[..., :3] / w_b, 0.0, 1.0)))  # (E.8)
+    delta = np.sqrt(N_SIGMA / (2.0 * f4))  # (E.9) with w_G = 2r·f4/N
+    quat = np.zeros(f.shape[:-1] + (N_SIGMA, 4))
+    quat[..., :6, 3] = 1.0
+    for i in range(3):
+        quat[..., 6 + 2 * i, i] = np.sin(alpha[..., i])
+        quat[..., 7 + 2 * i, i] = -np.sin(alpha[..., i])
+        quat[..., 6 + 2 * i : 8 + 2 * i, 3] = np.cos(alpha[..., i])[..., None]
+    quat[..., 12, 3] = 1.0  # (E.7)
+    eucl = np.zeros((N_SIGMA, 3))
+    eucl[:6] = np.repeat(np.eye(3), 2, axis=0) * np.tile([1.0, -1.0], 3)[:, None]
+    weights = np.concatenate(
+        [np.repeat(w_g, 6, axis=-1), np.repeat(w_b / 2.0, 2, axis=-1), f4 / N_SIGMA], axis=-1
+    )  # (E.10), (E.12)–(E.15)
+    return quat, eucl, weights, delta
+
+
+def bingham_gauss_moments(q, w, weights):
+    """``m_ω`` (E.19), ``P_ω`` (E.20), ``P_q`` (E.21), ``P_qω`` (E.22) of weighted sigma points."""
+    m_w = np.einsum("...n,...ni->...i", weights, w)
+    dw = w - m_w[..., None, :]
+    p_w = np.einsum("...n,...ni,...nj->...ij", weights, dw, dw)
+    p_q = bingham.scatter(q, weights)
+    p_qw = np.einsum("...n,...ni,...nj->...ij", weights, q, dw)
+    return m_w, p_w, p_q, p_qw
+
+
+class UBiGaF:
+    """Prediction (Algorithm 6) and UKF-like update (Algorithm 7)."""
+
+    def __init__(self, dt: float, process_z, measurement_z, omega_process_cov):
+        if not dt > 0:
+            raise ValueError(f"dt must be positive, got {dt}")
+        self.dt = dt
+        self.process_cov = bingham.covariance(np.eye(4), _concentration(process_z, "process_z"))
+        self.measurement_cov = bingham.covariance(np.eye(4), _concentration(measurement_z, "measurement_z"))
+        self.omega_process_cov = _spd(omega_process_cov, 3, "omega_process_cov")  # P^r
+
+    def init(self, quat: np.ndarray, omega: np.ndarray, z0, omega_cov) -> UBiGaFState:
+        """Filters at ``quat (M, 4)``, ``omega (M, 3)``; Bingham spread ``z0``, ``omega_cov (3, 3)``."""
+        quat = quat_canonical(np.asarray(quat, float))
+        p_q = bingham.covariance(bingham.frame(quat), _concentration(z0, "z0"))
+        shape = quat.shape[:-1]
+        p_w = np.broadcast_to(_spd(omega_cov, 3, "omega_cov"), shape + (3, 3)).copy()
+        return UBiGaFState(quat, np.asarray(omega, float).copy(), p_w, p_q, np.zeros(shape + (4, 3)))
+
+    def sigma_points(self, q_ref, m_w, p_w, p_q, p_qw):
+        """Sigma points (E.16)–(E.17) of the Bingham–Gauss state, in the hemisphere of ``q_ref``."""
+        f, m = np.linalg.eigh(p_q)
+        f = np.maximum(f, 1e-15)
+        m = m * np.where(np.sum(m[..., :, 3] * q_ref, axis=-1) < 0, -1.0, 1.0)[..., None, None]
+        canon_q, canon_w, weights, delta = canonical_sigma_points(f / f.sum(axis=-1, keepdims=True))
+        q = np.einsum("...ij,...nj->...ni", m, canon_q)  # (E.16)
+        gain = np.swapaxes(np.linalg.solve(p_q, p_qw), -1, -2)  # P_qωᵀ P_q⁻¹
+        cond = p_w - gain @ p_qw  # conditional covariance of (C.11)
+        root = np.linalg.cholesky(0.5 * (cond + np.swapaxes(cond, -1, -2)) + 1e-12 * np.eye(3))
+        w = (delta[..., None] * np.einsum("...ij,nj->...ni", root, canon_w)
+             + np.einsum("...ij,...nj->...ni", gain, q) + m_w[..., None, :])  # (E.17)
+        return q, w, weights
+
+    def predict(self, s: UBiGaFState) -> UBiGaFState:
+        """Algorithm 6: noise added (steps 3–5), sigma points through (3.12), moments (E.19)–(E.22)."""
+        p_w = s.p_w + self.omega_process_cov  # step 3
+        p_q = bingham.compose_covariance(s.p_q, self.process_cov)  # step 4 (C.7)
+        q, w, weights = self.sigma_points(s.q, s.m_w, p_w, p_q, s.p_qw)  # step 5
+        q = quat_multiply(q, omega_quat(w, self.dt))  # step 6, (5.9)–(5.12)
+        q = _align(q, q[..., 12:13, :])
+        m_w, p_w, p_q, p_qw = bingham_gauss_moments(q, w, weights)  # step 7
+        mode = _align(np.linalg.eigh(p_q)[1][..., :, 3], q[..., 12, :])
+        return UBiGaFState(mode, m_w, p_w, p_q, p_qw, q, w, weights)
+
+    def update(self, s: UBiGaFState, meas: np.ndarray) -> UBiGaFState:
+        """Algorithm 7 in error Rodrigues coordinates (A.5) about the predicted mode."""
+        if s.sig_q is None:
+            sig_q, sig_w, weights = self.sigma_points(s.q, s.m_w, s.p_w, s.p_q, s.p_qw)
+        else:
+            sig_q, sig_w, weights = s.sig_q, s.sig_w, s.weights
+        q_bar = quat_conjugate(s.q)
+        d = rodrigues_from_quat(quat_multiply(q_bar[..., None, :], sig_q))
+        z_mean = np.einsum("...n,...ni->...i", weights, d)  # step 1 (A.23)
+        dz = d - z_mean[..., None, :]
+        p_zz = np.einsum("...n,...ni,...nj->...ij", weights, dz, dz)  # step 2 (A.24)
+        nu = rodrigues_from_quat(quat_multiply(q_bar, np.asarray(meas, float))) - z_mean  # step 3 (A.25)
+        spread = bingham.compose_covariance(s.p_q, self.measurement_cov) - s.p_q
+        p_nn = p_zz + bingham.tangent_covariance(s.q, spread)  # step 4: Cov(ν ⊗ Λ) (C.7)
+        r_sig = np.concatenate([d, sig_w], axis=-1)
+        r_mean = np.concatenate([z_mean, np.einsum("...n,...ni->...i", weights, sig_w)], axis=-1)
+        dr = r_sig - r_mean[..., None, :]
+        p_rr = np.einsum("...n,...ni,...nj->...ij", weights, dr, dr)
+        p_rz = np.einsum("...n,...ni,...nj->...ij", weights, dr, dz)  # step 5 (A.27)
+        gain = np.swapaxes(np.linalg.solve(p_nn, np.swapaxes(p_rz, -1, -2)), -1, -2)  # step 6 (A.28)
+        r = r_mean + np.einsum("...ij,...j->...i", gain, nu)  # step 7 (A.29)
+        p_r = p_rr - gain @ p_nn @ np.swapaxes(gain, -1, -2)  # (A.30)
+        p_r = 0.5 * (p_r + np.swapaxes(p_r, -1, -2))
+        q = quat_canonical(quat_multiply(s.q, quat_from_rodrigues(r[..., :3])))
+        return UBiGaFState(q, r[..., 3:], p_r[..., 3:, 3:], *self.quaternion_moments(q, p_r))  # step 8
+
+    @staticmethod
+    def quaternion_moments(q: np.ndarray, p_r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``P_q`` (C.15) and ``P_qω`` (C.16) about mode ``q`` from the error-state covariance ``p_r``.
+
+        With ``q_true = q ⊗ e``, ``e ≈ [d/2, √(1 − |d|²/4)]``: ``E[e eᵀ] = diag-block(P_dd/4, 1 − tr/4)``
+        and ``E[e (ω − m)ᵀ] = [P_dω/2; 0]``, mapped by the left multiplication ``L(q)``.
+        """
+        p_dd = p_r[..., :3, :3]
+        e = np.zeros(p_r.shape[:-2] + (4, 4))
+        e[..., :3, :3] = p_dd / 4.0
+        e[..., 3, 3] = np.clip(1.0 - np.trace(p_dd, axis1=-2, axis2=-1) / 4.0, 1e-6, 1.0)
+        e_w = np.zeros(p_r.shape[:-2] + (4, 3))
+        e_w[..., :3, :] = p_r[..., :3, 3:] / 2.0
+        left = bingham.frame(q)
+        return left @ e @ np.swapaxes(left, -1, -2), left @ e_w
+
+    @staticmethod
+    def estimate(s: UBiGaFState) -> tuple[np.ndarray, np.ndarray]:
+        """The mode (canonical) and the mean angular velocity."""
+        return quat_canonical(s.q), s.m_w.copy()
+
+    @staticmethod
+    def covariance(s: UBiGaFState) -> np.ndarray:
+        """Rotation-error covariance ``(M, 3, 3)`` about the mode, rad²."""
+        return bingham.tangent_covariance(s.q, s.p_q)
