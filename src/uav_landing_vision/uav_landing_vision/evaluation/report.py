@@ -1,0 +1,139 @@
+"""Thesis-format reports: text tables, CSV tables, error-vs-frame plots, the JSON summary.
+
+JSON summary schema (every evaluation command writes it)::
+
+    {"sequence": str, "frames": int,
+     "variants": {"C4N2": {"translation_m": {p5, p25, median, p75, p95, outlier_pct, mae, rmse, sd},
+                           "rotation_deg": {same keys},
+                           "lost_frames_pct": float, "ms_per_frame": float or null}}}
+
+``translation_m`` is the Euclidean error, ``rotation_deg`` the geodesic error (3.3).
+"""
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+
+from .statistics import ROTATION_COLUMNS, ROW_NAMES, STAT_KEYS, TRANSLATION_COLUMNS, error_statistics
+
+AXIS_LABELS = {"euclidean": "Euclidean", "x": "X", "y": "Y", "z": "Z",
+               "geodesic": "Geodesic", "alpha": "α", "beta": "β", "gamma": "γ"}
+
+
+class SummaryError(ValueError):
+    """A JSON summary that does not follow the schema."""
+
+
+def statistics_table(errors_by_variant: dict[str, dict[str, np.ndarray]], columns) -> dict[str, dict]:
+    """``{"<variant> <axis>": stats}`` for every variant and every axis in ``columns``."""
+    return {f"{v} {AXIS_LABELS[c]}" if len(columns) > 1 else v: error_statistics(err[c])
+            for v, err in errors_by_variant.items() for c in columns}
+
+
+def format_table(stats_by_column: dict[str, dict], title: str, digits: int = 2) -> str:
+    """A text table with the thesis's rows and one column per entry."""
+    names = list(stats_by_column)
+    width = max([12] + [len(n) + 2 for n in names])
+    lines = [title, f"{'':<16}" + "".join(f"{n:>{width}}" for n in names)]
+    for key in STAT_KEYS:
+        cells = "".join(f"{stats_by_column[n][key]:>{width}.{digits}f}" for n in names)
+        lines.append(f"{ROW_NAMES[key]:<16}{cells}")
+    return "\n".join(lines)
+
+
+def write_table_csv(path, stats_by_column: dict[str, dict]) -> None:
+    """The table as CSV: a header row of columns, one row per statistic."""
+    with Path(path).open("w", newline="") as f:
+        out = csv.writer(f)
+        out.writerow(["statistic", *stats_by_column])
+        for key in STAT_KEYS:
+            out.writerow([ROW_NAMES[key], *(repr(stats_by_column[n][key]) for n in stats_by_column)])
+
+
+def plot_errors(path, errors_by_variant: dict[str, dict[str, np.ndarray]], columns, unit: str) -> None:
+    """Error vs. frame, one panel per axis, one line per variant (thesis Figs. 6.24–6.25)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(columns), figsize=(4.2 * len(columns), 3.2), squeeze=False)
+    for ax, col in zip(axes[0], columns):
+        for name, err in errors_by_variant.items():
+            ax.plot(np.arange(len(err[col])), err[col], lw=0.9, label=name)
+        ax.set_title(AXIS_LABELS[col])
+        ax.set_xlabel("frame")
+        ax.set_ylabel(f"error [{unit}]")
+        ax.grid(True, alpha=0.3)
+    axes[0][0].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def variant_summary(errors: dict[str, np.ndarray], ms_per_frame: float | None = None) -> dict:
+    """One variant's entry of the JSON summary."""
+    lost = ~np.isfinite(errors["euclidean"]) | ~np.isfinite(errors["geodesic"])
+    return {
+        "translation_m": error_statistics(errors["euclidean"]),
+        "rotation_deg": error_statistics(errors["geodesic"]),
+        "lost_frames_pct": float(100.0 * lost.mean()) if lost.size else 0.0,
+        "ms_per_frame": None if ms_per_frame is None else float(ms_per_frame),
+    }
+
+
+def make_summary(sequence: str, frames: int, variants: dict[str, dict]) -> dict:
+    """The JSON summary document (validated)."""
+    doc = {"sequence": str(sequence), "frames": int(frames), "variants": variants}
+    validate_summary(doc)
+    return doc
+
+
+def validate_summary(doc) -> None:
+    """Raise :class:`SummaryError` unless ``doc`` follows the schema above."""
+    def need(cond, msg):
+        if not cond:
+            raise SummaryError(msg)
+
+    need(isinstance(doc, dict) and set(doc) == {"sequence", "frames", "variants"},
+         "summary needs exactly the keys sequence, frames, variants")
+    need(isinstance(doc["sequence"], str) and isinstance(doc["frames"], int), "sequence: str, frames: int")
+    need(isinstance(doc["variants"], dict), "variants must be a mapping")
+    for name, v in doc["variants"].items():
+        need(isinstance(v, dict) and set(v) == {"translation_m", "rotation_deg", "lost_frames_pct", "ms_per_frame"},
+             f"variant {name}: needs translation_m, rotation_deg, lost_frames_pct, ms_per_frame")
+        for part in ("translation_m", "rotation_deg"):
+            need(isinstance(v[part], dict) and set(v[part]) == set(STAT_KEYS), f"variant {name}: {part} needs {STAT_KEYS}")
+            need(all(isinstance(x, float) for x in v[part].values()), f"variant {name}: {part} values must be floats")
+        need(isinstance(v["lost_frames_pct"], float), f"variant {name}: lost_frames_pct must be a float")
+        need(v["ms_per_frame"] is None or isinstance(v["ms_per_frame"], float),
+             f"variant {name}: ms_per_frame must be a float or null")
+
+
+def save_summary(path, doc: dict) -> None:
+    """Write the validated summary as JSON (a variant with no estimate at all has NaN statistics)."""
+    validate_summary(doc)
+    Path(path).write_text(json.dumps(doc, indent=2, allow_nan=True) + "\n")
+
+
+def load_summary(path) -> dict:
+    doc = json.loads(Path(path).read_text())
+    validate_summary(doc)
+    return doc
+
+
+def write_report(out_dir, sequence: str, errors_by_variant: dict[str, dict[str, np.ndarray]]) -> str:
+    """Translation and rotation tables (text + CSV) and plots into ``out_dir``; returns the text."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    parts = []
+    for kind, columns, unit in (("translation", TRANSLATION_COLUMNS, "m"), ("rotation", ROTATION_COLUMNS, "deg")):
+        table = statistics_table(errors_by_variant, columns)
+        parts.append(format_table(table, f"{sequence}: {kind} error ({unit})"))
+        write_table_csv(out / f"{kind}_error.csv", table)
+        plot_errors(out / f"{kind}_error.png", errors_by_variant, columns, unit)
+    text = "\n\n".join(parts)
+    (out / "tables.txt").write_text(text + "\n")
+    return text

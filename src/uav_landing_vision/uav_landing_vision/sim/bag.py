@@ -1,0 +1,185 @@
+"""Simulated sequences on disk: rosbag2 (mcap) through ``rosbags``, and plain PNG + CSV folders.
+
+Topics: ``/camera/image_raw`` (sensor_msgs/Image, rgb8), ``/camera/camera_info`` and
+``/uav/ground_truth`` (geometry_msgs/PoseStamped in the camera optical frame), one message
+each per frame with the same header stamp (also the bag's record time).
+"""
+
+import csv
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+from rosbags.typesys import Stores, get_typestore
+
+from ..camera import CameraModel, camera_from_info_fields, camera_info_fields, save_camera_info_yaml
+
+IMAGE_TOPIC = "/camera/image_raw"
+INFO_TOPIC = "/camera/camera_info"
+TRUTH_TOPIC = "/uav/ground_truth"
+POSE_TYPES = ("geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/PoseWithCovarianceStamped")
+CSV_HEADER = ["stamp_ns", "x", "y", "z", "qx", "qy", "qz", "qw"]
+
+_TS = get_typestore(Stores.ROS2_JAZZY)
+
+
+@dataclass(frozen=True)
+class Poses:
+    """Stamped poses: ``stamps_ns (N,)`` int64, ``trans (N,3)``, ``quat (N,4)`` [x,y,z,w]."""
+
+    stamps_ns: np.ndarray
+    trans: np.ndarray
+    quat: np.ndarray
+
+
+class SequenceWriter:
+    """Write frames to a new rosbag2 directory (mcap) and, optionally, a PNG + CSV folder."""
+
+    def __init__(self, bag_dir, camera: CameraModel, png_dir=None, compress: bool = False):
+        self.camera = camera
+        self.writer = Writer(Path(bag_dir), version=Writer.VERSION_LATEST, storage_plugin=StoragePlugin.MCAP)
+        if compress:
+            self.writer.set_compression(Writer.CompressionMode.STORAGE, Writer.CompressionFormat.ZSTD)
+        self.writer.open()
+        self.conn = {
+            IMAGE_TOPIC: self.writer.add_connection(IMAGE_TOPIC, "sensor_msgs/msg/Image", typestore=_TS),
+            INFO_TOPIC: self.writer.add_connection(INFO_TOPIC, "sensor_msgs/msg/CameraInfo", typestore=_TS),
+            TRUTH_TOPIC: self.writer.add_connection(TRUTH_TOPIC, "geometry_msgs/msg/PoseStamped", typestore=_TS),
+        }
+        info = camera_info_fields(camera)
+        self._info = dict(height=info["height"], width=info["width"], distortion_model=info["distortion_model"],
+                          d=np.array(info["d"]), k=np.array(info["k"]), r=np.array(info["r"]), p=np.array(info["p"]))
+        self.png_dir = Path(png_dir) if png_dir else None
+        self._csv = None
+        if self.png_dir:
+            self.png_dir.mkdir(parents=True, exist_ok=False)
+            save_camera_info_yaml(camera, self.png_dir / "camera_info.yaml")
+            self._csv_file = (self.png_dir / "ground_truth.csv").open("w", newline="")
+            self._csv = csv.writer(self._csv_file)
+            self._csv.writerow(CSV_HEADER)
+
+    def write(self, stamp_ns: int, image_rgb: np.ndarray, trans: np.ndarray, quat: np.ndarray) -> None:
+        m = _TS.types
+        header = m["std_msgs/msg/Header"](stamp=m["builtin_interfaces/msg/Time"](sec=stamp_ns // 10**9,
+                                          nanosec=stamp_ns % 10**9), frame_id=self.camera.frame_id)
+        h, w = image_rgb.shape[:2]
+        image = m["sensor_msgs/msg/Image"](header=header, height=h, width=w, encoding="rgb8", is_bigendian=0,
+                                           step=3 * w, data=np.ascontiguousarray(image_rgb).reshape(-1))
+        roi = m["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
+        info = m["sensor_msgs/msg/CameraInfo"](header=header, binning_x=0, binning_y=0, roi=roi, **self._info)
+        pose = m["geometry_msgs/msg/Pose"](
+            position=m["geometry_msgs/msg/Point"](x=float(trans[0]), y=float(trans[1]), z=float(trans[2])),
+            orientation=m["geometry_msgs/msg/Quaternion"](x=float(quat[0]), y=float(quat[1]),
+                                                          z=float(quat[2]), w=float(quat[3])))
+        truth = m["geometry_msgs/msg/PoseStamped"](header=header, pose=pose)
+        for topic, msg in ((IMAGE_TOPIC, image), (INFO_TOPIC, info), (TRUTH_TOPIC, truth)):
+            self.writer.write(self.conn[topic], stamp_ns, _TS.serialize_cdr(msg, self.conn[topic].msgtype))
+        if self._csv:
+            cv2.imwrite(str(self.png_dir / f"{stamp_ns}.png"), cv2.cvtColor(image_rgb, cv2.COLOR_RGB2BGR))
+            self._csv.writerow([stamp_ns, *map(repr, map(float, trans)), *map(repr, map(float, quat))])
+
+    def close(self) -> None:
+        self.writer.close()
+        if self._csv:
+            self._csv_file.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def _stamp(header) -> int:
+    return int(header.stamp.sec) * 10**9 + int(header.stamp.nanosec)
+
+
+def _decode_image(msg) -> np.ndarray:
+    """RGB uint8 (H, W, 3) of a sensor_msgs/Image (rgb8, bgr8, mono8) or CompressedImage."""
+    if hasattr(msg, "format"):
+        bgr = cv2.imdecode(np.asarray(msg.data, np.uint8), cv2.IMREAD_COLOR)
+        return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+    channels = {"rgb8": 3, "bgr8": 3, "mono8": 1}.get(msg.encoding)
+    if channels is None:
+        raise ValueError(f"unsupported image encoding {msg.encoding!r} (rgb8, bgr8, mono8)")
+    rows = np.asarray(msg.data, np.uint8).reshape(msg.height, msg.step)
+    img = rows[:, : msg.width * channels].reshape(msg.height, msg.width, channels)
+    if msg.encoding == "bgr8":
+        return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    if msg.encoding == "mono8":
+        return cv2.cvtColor(img, cv2.COLOR_GRAY2RGB)
+    return img.copy()
+
+
+def _topic_messages(path, topic: str, types: tuple[str, ...]):
+    """Deserialised messages of ``topic`` (or of the first topic with one of ``types`` if empty)."""
+    with Reader(Path(path)) as reader:
+        conns = [c for c in reader.connections if (c.topic == topic if topic else c.msgtype in types)]
+        if not conns:
+            found = sorted(f"{c.topic} [{c.msgtype}]" for c in reader.connections)
+            raise ValueError(f"{path}: no topic {topic or 'of type ' + ' or '.join(types)}; has {found}")
+        conns = [c for c in conns if c.topic == conns[0].topic]
+        for conn, _, raw in reader.messages(connections=conns):
+            yield _TS.deserialize_cdr(raw, conn.msgtype)
+
+
+def iter_images(path, topic: str = IMAGE_TOPIC):
+    """RGB frames of an image topic of a bag (empty topic: the first Image/CompressedImage topic)."""
+    for msg in _topic_messages(path, topic, ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")):
+        yield _decode_image(msg)
+
+
+def iter_frames(path, topic: str = IMAGE_TOPIC):
+    """``(stamp_ns, rgb image)`` pairs of a bag's image topic, in order."""
+    for msg in _topic_messages(path, topic, ()):
+        yield _stamp(msg.header), _decode_image(msg)
+
+
+def read_camera(path, topic: str = INFO_TOPIC) -> CameraModel:
+    """The camera of the first camera_info message of a bag."""
+    msg = next(_topic_messages(path, topic, ()))
+    return camera_from_info_fields(msg.width, msg.height, msg.distortion_model, msg.d, msg.k, msg.r,
+                                   frame_id=msg.header.frame_id or "camera_optical_frame")
+
+
+def read_poses(path, topic: str = "") -> Poses:
+    """Stamped poses from a bag topic (PoseStamped or PoseWithCovarianceStamped), a CSV file, or
+    a simulator PNG folder (its ``ground_truth.csv``). For a bag, an empty topic means
+    ``/uav/ground_truth``.
+    """
+    path = Path(path)
+    if path.is_dir() and (path / "ground_truth.csv").exists():
+        path = path / "ground_truth.csv"
+    if path.suffix == ".csv":
+        return read_pose_csv(path)
+    stamps, trans, quat = [], [], []
+    for msg in _topic_messages(path, topic or TRUTH_TOPIC, ()):
+        pose = msg.pose.pose if hasattr(msg.pose, "covariance") else msg.pose
+        stamps.append(_stamp(msg.header))
+        trans.append([pose.position.x, pose.position.y, pose.position.z])
+        quat.append([pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w])
+    return Poses(np.array(stamps, np.int64), np.array(trans, float).reshape(-1, 3), np.array(quat, float).reshape(-1, 4))
+
+
+def read_pose_csv(path) -> Poses:
+    """Poses from a CSV with the columns ``stamp_ns,x,y,z,qx,qy,qz,qw`` (extra columns ignored)."""
+    with Path(path).open(newline="") as f:
+        rows = list(csv.DictReader(f))
+    missing = [c for c in CSV_HEADER if rows and c not in rows[0]]
+    if not rows or missing:
+        raise ValueError(f"{path}: needs a header with {CSV_HEADER} and at least one row (missing {missing})")
+    col = {c: np.array([float(r[c]) for r in rows]) for c in CSV_HEADER[1:]}
+    stamps = np.array([int(r["stamp_ns"]) for r in rows], np.int64)
+    return Poses(stamps, np.stack([col["x"], col["y"], col["z"]], -1),
+                 np.stack([col["qx"], col["qy"], col["qz"], col["qw"]], -1))
+
+
+def write_pose_csv(path, poses: Poses) -> None:
+    """Write poses in the CSV format of :func:`read_pose_csv`."""
+    with Path(path).open("w", newline="") as f:
+        out = csv.writer(f)
+        out.writerow(CSV_HEADER)
+        for s, t, q in zip(poses.stamps_ns, poses.trans, poses.quat):
+            out.writerow([int(s), *map(repr, map(float, t)), *map(repr, map(float, q))])

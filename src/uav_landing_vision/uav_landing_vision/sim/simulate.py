@@ -1,0 +1,95 @@
+"""A whole simulated sequence: scenario → trajectory → frames → rosbag2 (and PNG + CSV)."""
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..camera import CameraModel, load_camera_info_yaml
+from ..resources import config_path
+from .backgrounds import make_background
+from .config import Scenario, ScenarioError
+from .trajectory import Trajectory, landing_approach, single_frame_poses
+
+# Child seeds, in this fixed order, one per subsystem: adding frames never changes earlier draws.
+_STREAMS = ("uav", "ship", "background", "noise")
+
+
+@dataclass(frozen=True)
+class SimulationResult:
+    frames: int
+    seconds: float
+    bag_dir: Path
+
+
+def generators(seed: int) -> dict[str, np.random.Generator]:
+    """One independent generator per subsystem, derived from the scenario seed."""
+    children = np.random.SeedSequence(seed).spawn(len(_STREAMS))
+    return {name: np.random.default_rng(s) for name, s in zip(_STREAMS, children)}
+
+
+def scenario_camera(scenario: Scenario) -> CameraModel:
+    """The camera of the scenario's ``camera_info`` (a ``config/`` file name or a path)."""
+    path = Path(scenario.camera_info)
+    return load_camera_info_yaml(path if path.exists() else config_path(scenario.camera_info))
+
+
+def make_trajectory(scenario: Scenario, rngs: dict[str, np.random.Generator]) -> Trajectory:
+    """The scenario's ground-truth sequence (landing approach or single-frame poses)."""
+    if scenario.approach is not None:
+        return landing_approach((rngs["uav"], rngs["ship"]), scenario.approach, scenario.ship, scenario.dt_s)
+    return single_frame_poses(rngs["uav"], scenario.single_frame, scenario.ship, scenario.dt_s)
+
+
+def stamps_ns(scenario: Scenario, times_s: np.ndarray) -> np.ndarray:
+    """Header stamps (ns) of frames at ``times_s`` after the scenario's start time."""
+    return np.int64(round(scenario.start_time_s * 1e9)) + np.round(np.asarray(times_s) * 1e9).astype(np.int64)
+
+
+def sun_direction(scenario: Scenario) -> np.ndarray:
+    """Unit vector towards the sun in M."""
+    az, el = np.radians([scenario.background.sun_azimuth_deg, scenario.background.sun_elevation_deg])
+    return np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+
+
+def simulate(scenario: Scenario, bag_dir, *, seed: int | None = None, frames: int | None = None,
+             video: str | None = None, png_dir=None, compress: bool = False, progress: bool = True,
+             mesh=None) -> SimulationResult:
+    """Generate the sequence of ``scenario`` (seed overridden by ``seed``) into ``bag_dir``.
+
+    ``frames`` keeps the first N frames of the sequence (the approach length is set by the
+    seed's start range and speed). Returns the frame count and the wall time.
+    """
+    from tqdm import tqdm
+
+    from .bag import SequenceWriter
+    from .synthesis import FrameSynthesizer
+
+    start = time.perf_counter()
+    rngs = generators(scenario.seed if seed is None else seed)
+    traj = make_trajectory(scenario, rngs)
+    if frames is not None:
+        if frames > len(traj):
+            raise ScenarioError(f"scenario '{scenario.name}' with this seed has {len(traj)} frames; "
+                                f"--frames {frames} is too many (raise start_range_m or lower the speed)")
+        traj = traj.head(frames)
+    camera = scenario_camera(scenario)
+    synth = FrameSynthesizer(camera, scenario.imaging, mesh)
+    background = make_background(scenario.background, synth.render_camera, scenario.ship, rngs["background"], video)
+    stamps = stamps_ns(scenario, traj.times_s)
+    sun = sun_direction(scenario)
+    centres = synth.render_camera.project_pinhole(traj.trans)
+    shifts = np.zeros_like(centres)
+    if traj.continuous:
+        shifts[1:] = np.diff(centres, axis=0) * scenario.imaging.exposure_fraction
+        lengths = np.linalg.norm(shifts, axis=1, keepdims=True)
+        shifts *= np.minimum(1.0, scenario.imaging.max_blur_px / np.maximum(lengths, 1e-9))
+
+    with SequenceWriter(bag_dir, camera, png_dir=png_dir, compress=compress) as writer:
+        for i in tqdm(range(len(traj)), desc=f"simulate {scenario.name}", unit="frame", disable=not progress):
+            bg = background.frame(i, traj.times_s[i], traj.cam_rot[i], traj.cam_pos[i])
+            light = traj.cam_rot[i].T @ sun
+            raw, _ = synth.frame(bg, traj.quat[i], traj.trans[i], light, shifts[i], rngs["noise"])
+            writer.write(int(stamps[i]), raw, traj.trans[i], traj.quat[i])
+    return SimulationResult(len(traj), time.perf_counter() - start, Path(bag_dir))
