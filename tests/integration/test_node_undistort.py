@@ -1,0 +1,154 @@
+"""``undistort`` in-process over DDS: rectified frames, and every bad input dropped without a crash."""
+
+import cv2
+import numpy as np
+import pytest
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import CameraInfo, Image
+from test_node_common import SMALL_CAMERA, camera_info_msg, image_msg, rgb_frame, ros  # noqa: F401 (fixture)
+
+from uav_landing_vision.camera import save_camera_info_yaml
+from uav_landing_vision.config import ConfigError
+from uav_landing_vision.nodes.image import image_to_numpy
+from uav_landing_vision.nodes.qos import SENSOR_QOS
+from uav_landing_vision.nodes.undistort import Undistort
+
+
+class Rig:
+    """The node under test wired to the probe's publishers and collecting subscriptions."""
+
+    def __init__(self, ros, **node_kwargs):
+        self.ros = ros
+        self.node = ros.add(Undistort(context=ros.context, **node_kwargs))
+        self.image_pub = ros.probe.create_publisher(Image, "camera/image_raw", SENSOR_QOS)
+        self.info_pub = ros.probe.create_publisher(CameraInfo, "camera/camera_info", SENSOR_QOS)
+        self.rect = ros.collect(Image, "camera/image_rect", SENSOR_QOS)
+        self.rect_info = ros.collect(CameraInfo, "camera/camera_info_rect", SENSOR_QOS)
+        info_from_topic = not self.node.config.camera_info_file
+        assert ros.spin_until(
+            lambda: self.image_pub.get_subscription_count() >= 1
+            and (self.info_pub.get_subscription_count() >= 1 or not info_from_topic)
+            and self.node.count_subscribers("camera/image_rect") >= 1
+            and self.node.count_subscribers("camera/camera_info_rect") >= 1
+        ), "discovery"
+
+    def send_info(self, camera, sec=1):
+        before = self.node.counters["camera_info_received"]
+        self.info_pub.publish(camera_info_msg(camera, sec))
+        assert self.ros.spin_until(lambda: self.node.counters["camera_info_received"] > before)
+
+    def send_image(self, msg):
+        """Publish one image; return the rectified image, or None when the node dropped it."""
+        before = (self.node.counters["published"], self.node.counters["dropped"])
+        self.image_pub.publish(msg)
+        assert self.ros.spin_until(lambda: (self.node.counters["published"], self.node.counters["dropped"]) != before)
+        if self.node.counters["dropped"] != before[1]:
+            return None
+        assert self.ros.spin_until(lambda: len(self.rect) > before[0] and len(self.rect_info) > before[0])
+        return self.rect[-1]
+
+
+def _expected(camera, pixels):
+    return cv2.remap(pixels, *camera.undistortion_maps(), cv2.INTER_LINEAR)
+
+
+@pytest.mark.parametrize("encoding", ["rgb8", "bgr8", "mono8"])
+def test_rectifies_each_encoding_with_same_header_and_rectified_camera_info(ros, encoding):
+    rig = Rig(ros)
+    rig.send_info(SMALL_CAMERA)
+    pixels = rgb_frame(SMALL_CAMERA, 3)
+    if encoding == "mono8":
+        pixels = pixels[..., 0].copy()
+    raw = image_msg(pixels, encoding, sec=5, nanosec=123, pad=4)
+    rect = rig.send_image(raw)
+    assert rect is not None
+    assert (rect.header, rect.encoding, rect.width, rect.height) == (raw.header, encoding, 40, 30)
+    np.testing.assert_array_equal(image_to_numpy(rect), _expected(SMALL_CAMERA, pixels))
+    assert not np.array_equal(image_to_numpy(rect), pixels)  # the lens model really changed the frame
+    info = rig.rect_info[-1]
+    assert info.header == raw.header
+    np.testing.assert_array_equal(info.k, SMALL_CAMERA.K.ravel())
+    assert list(info.d) == [0.0] * 5 and (info.width, info.height) == (40, 30)
+
+
+def test_image_before_any_camera_info_is_dropped_then_tracking_starts(ros):
+    rig = Rig(ros)
+    assert rig.send_image(image_msg(rgb_frame(SMALL_CAMERA), "rgb8")) is None
+    assert rig.node.last_error == "image before any camera_info"
+    rig.send_info(SMALL_CAMERA)
+    assert rig.send_image(image_msg(rgb_frame(SMALL_CAMERA), "rgb8")) is not None
+    assert rig.node.counters["dropped"] == 1
+
+
+def test_malformed_images_are_dropped_and_the_node_keeps_working(ros):
+    rig = Rig(ros)
+    rig.send_info(SMALL_CAMERA)
+    pixels = rgb_frame(SMALL_CAMERA)
+    wrong_encoding = image_msg(pixels, "rgb8")
+    wrong_encoding.encoding = "rgba8"
+    short_data = image_msg(pixels, "rgb8")
+    short_data.data = bytes(100)
+    wrong_size = image_msg(np.zeros((20, 40, 3), np.uint8), "rgb8")
+    empty = Image(encoding="rgb8")
+    for msg, reason in [
+        (wrong_encoding, "unsupported image encoding 'rgba8'"),
+        (short_data, "image data has 100 bytes"),
+        (wrong_size, "image is 40x20 but the calibration is 40x30"),
+        (empty, "image is 0x0"),
+    ]:
+        assert rig.send_image(msg) is None
+        assert reason in rig.node.last_error
+    assert rig.node.counters["dropped"] == 4
+    assert rig.send_image(image_msg(pixels, "rgb8")) is not None
+
+
+def test_unusable_camera_info_is_dropped_and_the_previous_calibration_kept(ros):
+    rig = Rig(ros)
+    rig.send_info(SMALL_CAMERA)
+    bad = camera_info_msg(SMALL_CAMERA)
+    bad.k = [0.0] * 9
+    bad.header.stamp.sec = 2
+    rig.info_pub.publish(bad)
+    assert ros.spin_until(lambda: rig.node.counters["dropped"] == 1)
+    assert "K is missing" in rig.node.last_error
+    nan = camera_info_msg(SMALL_CAMERA)
+    nan.d = [float("nan")] * 5
+    rig.info_pub.publish(nan)
+    assert ros.spin_until(lambda: rig.node.counters["dropped"] == 2)
+    pixels = rgb_frame(SMALL_CAMERA, 9)
+    rect = rig.send_image(image_msg(pixels, "rgb8"))
+    np.testing.assert_array_equal(image_to_numpy(rect), _expected(SMALL_CAMERA, pixels))
+
+
+def test_a_new_calibration_replaces_the_old_one(ros):
+    rig = Rig(ros)
+    rig.send_info(SMALL_CAMERA)
+    other = type(SMALL_CAMERA)(20, 10, np.array([[18.0, 0, 9.5], [0, 18.0, 4.5], [0, 0, 1]]), np.array([0.1, 0, 0, 0, 0]))
+    rig.send_info(other)
+    assert rig.send_image(image_msg(rgb_frame(SMALL_CAMERA), "rgb8")) is None  # old size no longer matches
+    pixels = rgb_frame(other, 4)
+    rect = rig.send_image(image_msg(pixels, "rgb8"))
+    np.testing.assert_array_equal(image_to_numpy(rect), _expected(other, pixels))
+
+
+def test_calibration_from_a_file_parameter(ros, tmp_path):
+    path = tmp_path / "cam.yaml"
+    save_camera_info_yaml(SMALL_CAMERA, path)
+    rig = Rig(ros, parameter_overrides=[Parameter("camera_info_file", value=str(path))])
+    assert rig.node.count_subscribers("camera/camera_info") == 0  # the file replaces the topic
+    pixels = rgb_frame(SMALL_CAMERA, 5)
+    rect = rig.send_image(image_msg(pixels, "bgr8"))
+    np.testing.assert_array_equal(image_to_numpy(rect), _expected(SMALL_CAMERA, pixels))
+
+
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        (Parameter("interpolation", value="bicubic"), "interpolation: 'bicubic' is not one of"),
+        (Parameter("camera_info_file", value="/nonexistent/cam.yaml"), "camera_info_file: cannot read camera calibration"),
+        (Parameter("rate", value=2.0), r"unknown key\(s\) \['rate'\]"),
+    ],
+)
+def test_bad_parameters_fail_start_up(ros, override, message):
+    with pytest.raises(ConfigError, match=message):
+        Undistort(context=ros.context, parameter_overrides=[override])
