@@ -2,8 +2,9 @@
 
 import cv2
 import numpy as np
+import pytest
 
-from uav_landing_vision.render import benchmark, flyby
+from uav_landing_vision.render import benchmark, context, flyby
 
 
 def test_flyby_writes_frames_with_the_uav(tmp_path):
@@ -30,3 +31,13 @@ def test_benchmark_rows():
     assert all(r["ms"] > 0 and r["particles_per_s"] > 0 for r in rows)
     text = benchmark.format_rows(rows)
     assert "particles/s" in text and text.count("\n") == 4
+
+
+def test_context_failure_names_the_packages(monkeypatch):
+    def fail(**kwargs):
+        raise Exception("libGL.so not loaded")
+
+    monkeypatch.setattr(context, "_CONTEXT", None)
+    monkeypatch.setattr(context.moderngl, "create_standalone_context", fail)
+    with pytest.raises(RuntimeError, match="libegl1 libgl1"):
+        context.gl_context()

@@ -202,20 +202,16 @@ class Renderer:
         out[:, 16:20] = dst
 
     def _msaa_target(self, samples: int) -> moderngl.Framebuffer:
-        if samples == 1:
-            key = 1
-        elif not 1 < samples <= self.ctx.max_samples:
+        """The (cached) colour + depth target with ``samples`` per pixel, resolved into ``_rgba``."""
+        if not 1 <= samples <= self.ctx.max_samples:
             raise ValueError(f"samples must be 1..{self.ctx.max_samples}, got {samples}")
-        else:
-            key = samples
-        if key not in self._msaa:
-            size = (self.width, self.height)
-            s = 0 if key == 1 else key
-            self._msaa[key] = self.ctx.framebuffer(
+        if samples not in self._msaa:
+            size, s = (self.width, self.height), (0 if samples == 1 else samples)
+            self._msaa[samples] = self.ctx.framebuffer(
                 color_attachments=[self.ctx.renderbuffer(size, components=4, dtype="f1", samples=s)],
                 depth_attachment=self.ctx.depth_renderbuffer(size, samples=s),
             )
-        return self._msaa[key]
+        return self._msaa[samples]
 
 
 def _hull_points(vertices: np.ndarray) -> np.ndarray:
