@@ -54,7 +54,8 @@ def test_mesh_validation():
         fixed_wing_mesh("medium")
     open_mesh = Mesh(np.eye(3), np.array([[0, 1, 2]]))
     assert not open_mesh.is_closed
-    tetra = Mesh(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]]), np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]))
+    corners = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]])
+    tetra = Mesh(corners, np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]))
     assert tetra.is_closed and tetra.signed_volume == pytest.approx(1 / 6)
     flipped = Mesh(tetra.vertices, tetra.faces[[0, 1, 2]].tolist() + [[1, 3, 2]])
     assert not flipped.is_closed  # one face wound against the others

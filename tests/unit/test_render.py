@@ -135,7 +135,8 @@ def test_boxes_are_square_and_contain_the_projected_model(camera, mesh, renderer
 
 def test_tile_pixel_convention(camera):
     """A 1 m square facing the camera at 5 m: 220 px across (fx=1100), pixel-exact in its tile."""
-    square = Mesh(np.array([[-0.5, -0.5, 0], [0.5, -0.5, 0], [0.5, 0.5, 0], [-0.5, 0.5, 0.0]]), np.array([[0, 2, 1], [0, 3, 2]]))
+    corners = np.array([[-0.5, -0.5, 0], [0.5, -0.5, 0], [0.5, 0.5, 0], [-0.5, 0.5, 0.0]])
+    square = Mesh(corners, np.array([[0, 2, 1], [0, 3, 2]]))
     r = Renderer(camera, square, tile=TILE, margin=0.0)
     t = np.array([0.0, 0.0, 5.0])
     full = r.silhouette_full([0, 0, 0, 1.0], t)

@@ -45,7 +45,7 @@ def fixed_wing_mesh(level: str = "high") -> Mesh:
     return Mesh(np.concatenate(vertices), np.concatenate(faces))
 
 
-def _airfoil(n: int, thickness: float, design_cl: float) -> tuple[np.ndarray, np.ndarray]:
+def _airfoil(n: int, thickness: float, design_cl: float) -> np.ndarray:
     """Closed section loop ``(2n−2, 2)`` of (chordwise, normal) coordinates for unit chord.
 
     Loop order: trailing edge, upper surface to the leading edge, lower surface back.
@@ -59,7 +59,7 @@ def _airfoil(n: int, thickness: float, design_cl: float) -> tuple[np.ndarray, np
     yc = -design_cl / (4 * np.pi) * (olo + xlx)
     upper = np.stack([x, yc + yt], axis=1)[::-1]  # TE → LE
     lower = np.stack([x, yc - yt], axis=1)[1:-1]  # after LE → before TE
-    return np.concatenate([upper, lower]), x
+    return np.concatenate([upper, lower])
 
 
 def _loft(sections: np.ndarray, start, end) -> tuple[np.ndarray, np.ndarray]:
@@ -133,13 +133,13 @@ def _fuselage(segments: int, rings: int):
 
 
 def _wing(n: int):
-    loop, _ = _airfoil(n, 0.10, 0.4)
+    loop = _airfoil(n, 0.10, 0.4)
     stations = np.array([-SPAN / 2, 0.0, SPAN / 2])
     sections = np.stack(
         [
             np.stack(
                 [
-                    np.full(len(loop), 0.0) + _WING_LE_X - CHORD * loop[:, 0],
+                    _WING_LE_X - CHORD * loop[:, 0],
                     np.full(len(loop), y),
                     _WING_Z + abs(y) * np.tan(_DIHEDRAL) + CHORD * loop[:, 1],
                 ],
@@ -152,7 +152,7 @@ def _wing(n: int):
 
 
 def _tailplane(n: int):
-    loop, _ = _airfoil(n, 0.09, 0.0)
+    loop = _airfoil(n, 0.09, 0.0)
     chord, le_x = 0.12, -0.61
     sections = np.stack(
         [
@@ -164,7 +164,7 @@ def _tailplane(n: int):
 
 
 def _fin(n: int):
-    loop, _ = _airfoil(n, 0.09, 0.0)
+    loop = _airfoil(n, 0.09, 0.0)
     te_x = -0.73
     sections = []
     for z, chord in ((0.0, 0.14), (0.19, 0.08)):

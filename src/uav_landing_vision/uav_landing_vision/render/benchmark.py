@@ -61,6 +61,7 @@ def format_rows(rows: list[dict]) -> str:
     lines.append(f"{'mesh':<5} {'tris':>5} {'particles':>9} {'tile':>5} {'ms/call':>8} {'particles/s':>12}")
     for r in rows:
         lines.append(
-            f"{r['mesh']:<5} {r['triangles']:>5} {r['particles']:>9} {r['tile']:>5} {r['ms']:>8.2f} {r['particles_per_s']:>12}"
+            f"{r['mesh']:<5} {r['triangles']:>5} {r['particles']:>9} {r['tile']:>5} "
+            f"{r['ms']:>8.2f} {r['particles_per_s']:>12}"
         )
     return "\n".join(lines)

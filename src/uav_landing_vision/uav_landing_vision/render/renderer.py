@@ -141,7 +141,9 @@ class Renderer:
         self._full.read_into(self._full_buf, components=1, dtype="f1")
         return self._full_buf.astype(bool)
 
-    def shaded(self, quat, trans, background: np.ndarray, *, albedo=(0.85, 0.85, 0.82), light_dir=None, samples: int = 4):
+    def shaded(
+        self, quat, trans, background: np.ndarray, *, albedo=(0.85, 0.85, 0.82), light_dir=None, samples: int = 4
+    ) -> tuple[np.ndarray, np.ndarray]:
         """The UAV shaded over ``background`` (H,W,3) uint8 RGB → (rgb uint8, alpha float32 coverage).
 
         Anti-aliased by ``samples``× MSAA (1: aliased); Lambert + ambient with a uniform albedo;
@@ -149,7 +151,9 @@ class Renderer:
         """
         background = np.ascontiguousarray(background)
         if background.shape != (self.height, self.width, 3) or background.dtype != np.uint8:
-            raise ValueError(f"background must be ({self.height}, {self.width}, 3) uint8, got {background.shape} {background.dtype}")
+            raise ValueError(
+                f"background must be ({self.height}, {self.width}, 3) uint8, got {background.shape} {background.dtype}"
+            )
         light = np.asarray(_DEFAULT_LIGHT if light_dir is None else light_dir, dtype=float)
         if light.shape != (3,) or not np.linalg.norm(light) > 0:
             raise ValueError(f"light_dir must be a non-zero 3-vector, got {light_dir!r}")
