@@ -71,33 +71,33 @@ class BagPlayer(LandingNode):
         super().__init__("bag_player", **kwargs)
         self.config = cfg = self.load_config(BagPlayerConfig)
         self._reader = _open_bag(cfg.bag)
-        self._publishers = {}
+        self._players = {}
         for conn in self._reader.connections:
             self._add_publisher(conn.topic, conn.msgtype)
-        self._clock = self.create_publisher(Clock, "/clock", RELIABLE_QOS) if cfg.clock else None
+        self._clock_pub = self.create_publisher(Clock, "/clock", RELIABLE_QOS) if cfg.clock else None
         self._pending = None  # stamp (ns) of the paced frame awaiting its acknowledgement
         self._acked = set()
         if cfg.mode == "paced":
-            pace = self._publishers.get(cfg.pace_topic)
+            pace = self._players.get(cfg.pace_topic)
             if pace is None:
-                raise ConfigError(f"pace_topic: '{cfg.pace_topic}' is not a playable topic of the bag (topics: {sorted(self._publishers)})")
+                raise ConfigError(f"pace_topic: '{cfg.pace_topic}' is not a playable topic of the bag (topics: {sorted(self._players)})")
             if "header" not in pace.msg_type.get_fields_and_field_types():
                 raise ConfigError(f"pace_topic: '{cfg.pace_topic}' has no header to acknowledge")
             ack_cls = _message_class(cfg.ack_type)
             if ack_cls is None or "header" not in ack_cls.get_fields_and_field_types():
                 raise ConfigError(f"ack_type: '{cfg.ack_type}' is not an installed message type with a header")
             self._ack_sub = self.create_subscription(ack_cls, cfg.ack_topic, self._on_ack, qos_for_type(cfg.ack_type))
-        topics = {c.topic: c.msgcount for c in self._reader.connections if c.topic in self._publishers}
+        topics = {c.topic: c.msgcount for c in self._reader.connections if c.topic in self._players}
         self.get_logger().info(f"bag {cfg.bag}: {self._reader.message_count} messages, topics {topics}, mode {cfg.mode}")
 
     def _add_publisher(self, topic: str, type_name: str) -> None:
         cls = _message_class(type_name)
         if cls is None:
             self.get_logger().warn(f"{topic}: message type {type_name} is not installed; topic not played")
-        elif topic in self._publishers and self._publishers[topic].msg_type is not cls:
+        elif topic in self._players and self._players[topic].msg_type is not cls:
             self.get_logger().warn(f"{topic}: recorded with several types; {type_name} not played")
-        elif topic not in self._publishers:
-            self._publishers[topic] = self.create_publisher(cls, topic, qos_for_type(type_name))
+        elif topic not in self._players:
+            self._players[topic] = self.create_publisher(cls, topic, qos_for_type(type_name))
 
     def _on_ack(self, msg) -> None:
         self._acked.add(stamp_ns(msg.header.stamp))
@@ -110,7 +110,7 @@ class BagPlayer(LandingNode):
         first_ns = start = None
         try:
             for conn, t_ns, raw in self._messages():
-                publisher = self._publishers.get(conn.topic)
+                publisher = self._players.get(conn.topic)
                 if publisher is None:
                     continue
                 self.counters["received"] += 1
@@ -126,8 +126,8 @@ class BagPlayer(LandingNode):
                     if first_ns is None:
                         first_ns, start = t_ns, time.monotonic()
                     _spin_until(executor, start + (t_ns - first_ns) * 1e-9 / self.config.rate)
-                if self._clock is not None:
-                    self._clock.publish(Clock(clock=Time(sec=t_ns // 1_000_000_000, nanosec=t_ns % 1_000_000_000)))
+                if self._clock_pub is not None:
+                    self._clock_pub.publish(Clock(clock=Time(sec=t_ns // 1_000_000_000, nanosec=t_ns % 1_000_000_000)))
                 publisher.publish(raw)
                 self.counters["published"] += 1
                 if is_frame:
@@ -137,7 +137,7 @@ class BagPlayer(LandingNode):
             self.get_logger().error(f"bag {self.config.bag} cannot be read further: {exc}")
             return 1
         self._wait_for_ack(executor)
-        for publisher in self._publishers.values():
+        for publisher in self._players.values():
             if publisher.qos_profile.reliability == ReliabilityPolicy.RELIABLE:
                 publisher.wait_for_all_acked(Duration(seconds=ACKED_FLUSH_TIMEOUT_S))
         c = self.counters
@@ -157,13 +157,13 @@ class BagPlayer(LandingNode):
         missing = []
         for topic in self.config.ready_topics:
             name = self.resolve_topic_name(topic)
-            own = self._publishers.get(name)
+            own = self._players.get(name)
             if own is not None and own.get_subscription_count() == 0:
                 missing.append(f"subscriber of {name}")
             elif own is None and (self.count_publishers(name) == 0 or self.count_subscribers(name) == 0):
                 missing.append(f"publisher and subscriber of {name}")
         if self.config.mode == "paced":
-            if self._publishers[self.config.pace_topic].get_subscription_count() == 0:
+            if self._players[self.config.pace_topic].get_subscription_count() == 0:
                 missing.append(f"subscriber of {self.config.pace_topic}")
             if self._ack_sub.get_publisher_count() == 0:
                 missing.append(f"publisher of {self._ack_sub.topic_name}")

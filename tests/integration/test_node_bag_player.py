@@ -1,0 +1,200 @@
+"""``bag_player`` in-process over DDS: timed and paced playback, /clock, and bad bags or parameters."""
+
+import threading
+
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseStamped
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import CameraInfo, Image
+from test_node_common import SMALL_CAMERA, frame_entries, ros, write_bag  # noqa: F401 (fixture)
+
+from uav_landing_vision.config import ConfigError
+from uav_landing_vision.nodes.bag_player import BagPlayer
+from uav_landing_vision.nodes.base import stamp_ns
+from uav_landing_vision.nodes.qos import RELIABLE_QOS, SENSOR_QOS
+
+FRAMES = 5
+
+
+def _bag(tmp_path, storage=StoragePlugin.MCAP, frames=FRAMES, extra=()):
+    entries = frame_entries(SMALL_CAMERA, frames)
+    for i, (_, _, t, _) in enumerate(entries[::2]):
+        truth = PoseStamped()
+        truth.header.stamp.sec, truth.header.stamp.nanosec = divmod(t, 1_000_000_000)
+        truth.pose.position.z = 50.0 - i
+        entries.append(("/uav/ground_truth", "geometry_msgs/msg/PoseStamped", t, truth))
+    entries = sorted(entries + list(extra), key=lambda e: e[2])  # stable: image before camera_info
+    return write_bag(tmp_path / "bag", entries, storage)
+
+
+class Playback:
+    """A BagPlayer playing in a thread with its own executor, as its main() would."""
+
+    def __init__(self, ros, bag, **params):
+        overrides = [Parameter("bag", value=str(bag))] + [Parameter(k, value=v) for k, v in params.items()]
+        self.node = BagPlayer(context=ros.context, parameter_overrides=overrides)
+        self.executor = SingleThreadedExecutor(context=ros.context)
+        self.executor.add_node(self.node)
+        self.result = None
+        self._thread = threading.Thread(target=self._play)
+
+    def _play(self):
+        self.result = self.node.play(self.executor)
+
+    def start(self):
+        self._thread.start()
+        return self
+
+    def done(self) -> bool:
+        return not self._thread.is_alive()
+
+    def close(self):
+        self._thread.join(timeout=60)
+        self.executor.shutdown()
+        self.node.destroy_node()
+
+
+@pytest.fixture
+def playbacks():
+    started = []
+    yield started
+    for playback in started:
+        playback.close()
+
+
+@pytest.mark.parametrize("storage", [StoragePlugin.MCAP, StoragePlugin.SQLITE3], ids=["mcap", "sqlite3"])
+def test_timed_playback_publishes_every_topic_with_its_type_and_the_clock(ros, playbacks, tmp_path, storage):
+    images = ros.collect(Image, "/camera/image_raw", SENSOR_QOS)
+    infos = ros.collect(CameraInfo, "/camera/camera_info", SENSOR_QOS)
+    truths = ros.collect(PoseStamped, "/uav/ground_truth", RELIABLE_QOS)
+    clocks = ros.collect(Clock, "/clock", RELIABLE_QOS)
+    playback = Playback(
+        ros, _bag(tmp_path, storage), mode="timed", rate=1000.0, clock=True,
+        ready_topics=["/camera/image_raw", "/camera/camera_info", "/uav/ground_truth", "/clock"],
+    )
+    playbacks.append(playback.start())
+    assert ros.spin_until(lambda: playback.done() and len(truths) == FRAMES and len(images) == FRAMES)
+    assert playback.result == 0
+    stamps = [1_000_000_000 + i * 33_000_000 for i in range(FRAMES)]
+    assert [stamp_ns(m.header.stamp) for m in truths] == stamps
+    assert [m.pose.position.z for m in truths] == [50.0 - i for i in range(FRAMES)]
+    assert [stamp_ns(m.header.stamp) for m in images] == stamps
+    assert ros.spin_until(lambda: len(infos) == FRAMES)
+    assert ros.spin_until(lambda: len(clocks) == 3 * FRAMES)  # one per message
+    assert stamp_ns(clocks[-1].clock) == stamps[-1]
+    assert playback.node.counters["published"] == 3 * FRAMES
+
+
+def test_within_one_timestamp_the_frame_comes_after_its_camera_info(ros, tmp_path):
+    bag = write_bag(tmp_path / "bag", frame_entries(SMALL_CAMERA, 3, image_first=True))
+    node = ros.add(BagPlayer(context=ros.context, parameter_overrides=[Parameter("bag", value=str(bag))]))
+    topics = [conn.topic for conn, _, _ in node._messages()]
+    assert topics == ["/camera/camera_info", "/camera/image_raw"] * 3
+
+
+def test_paced_playback_publishes_a_frame_only_after_the_previous_one_is_acknowledged(ros, playbacks, tmp_path):
+    """The probe holds back the acknowledgement of frame 2 until the player has reported on
+    /diagnostics once more (the player spins ~1 s meanwhile): frame 3 must not come before it."""
+    frames = ros.collect(Image, "/camera/image_raw", SENSOR_QOS)
+    reports = ros.collect(DiagnosticArray, "/diagnostics", RELIABLE_QOS)
+    ack_pub = ros.probe.create_publisher(PoseStamped, "test/ack", RELIABLE_QOS)
+    playback = Playback(ros, _bag(tmp_path), mode="paced", ack_topic="test/ack", ack_type="geometry_msgs/msg/PoseStamped", ack_timeout_s=60.0)
+    playbacks.append(playback.start())
+    acked = []
+    held = {}
+
+    def step():
+        assert len(frames) <= len(acked) + 1, "a frame was published before the previous one was acknowledged"
+        if len(frames) > len(acked):
+            frame = frames[len(acked)]
+            if len(acked) == 2 and held.setdefault("reports", len(reports)) == len(reports):
+                return playback.done()  # hold the ack until the next diagnostics report
+            ack = PoseStamped(header=frame.header)
+            ack_pub.publish(ack)
+            acked.append(stamp_ns(frame.header.stamp))
+        return playback.done()
+
+    assert ros.spin_until(step)
+    assert playback.result == 0
+    assert acked == [1_000_000_000 + i * 33_000_000 for i in range(FRAMES)]
+    assert (playback.node.counters["acknowledged"], playback.node.counters["ack_timeouts"]) == (FRAMES, 0)
+
+
+def test_paced_playback_goes_on_after_an_ack_timeout(ros, playbacks, tmp_path):
+    frames = ros.collect(Image, "/camera/image_raw", SENSOR_QOS)
+    ack_pub = ros.probe.create_publisher(PoseStamped, "test/ack", RELIABLE_QOS)
+    playback = Playback(ros, _bag(tmp_path), mode="paced", ack_topic="test/ack", ack_type="geometry_msgs/msg/PoseStamped", ack_timeout_s=0.5)
+    playbacks.append(playback.start())
+    acked = set()
+
+    def step():
+        for i, frame in enumerate(frames):
+            if i != 1 and i not in acked:  # frame 1 is never acknowledged
+                ack_pub.publish(PoseStamped(header=frame.header))
+                acked.add(i)
+        return playback.done()
+
+    assert ros.spin_until(step)
+    assert playback.result == 0 and len(frames) == FRAMES
+    assert (playback.node.counters["acknowledged"], playback.node.counters["ack_timeouts"]) == (FRAMES - 1, 1)
+    assert "no acknowledgement of the frame stamped 1033000000 ns" in playback.node.last_error
+
+
+def test_paced_playback_without_a_downstream_gives_up_with_exit_code_1(ros, tmp_path):
+    node = ros.add(BagPlayer(context=ros.context, parameter_overrides=[
+        Parameter("bag", value=str(_bag(tmp_path))), Parameter("mode", value="paced"), Parameter("ready_timeout_s", value=0.5),
+    ]))
+    assert node.play(ros.executor) == 1
+    assert node.counters["published"] == 0
+
+
+def test_undeserialisable_messages_and_uninstalled_types_are_skipped(ros, playbacks, tmp_path):
+    garbage = ("/camera/image_raw", "sensor_msgs/msg/Image", 1_010_000_000, b"\x00\x01\x00\x00garbage")
+    bag = _bag(tmp_path, extra=[garbage])
+    with Writer(tmp_path / "custom", version=9) as writer:  # a type this machine does not have
+        conn = writer.add_connection("/custom", "foo_msgs/msg/Bar", msgdef="int32 a\n", rihs01="RIHS01_" + "0" * 64)
+        writer.write(conn, 1, b"\x00\x01\x00\x00\x07\x00\x00\x00")
+    images = ros.collect(Image, "/camera/image_raw", SENSOR_QOS)
+    truths = ros.collect(PoseStamped, "/uav/ground_truth", RELIABLE_QOS)
+    playback = Playback(ros, bag, mode="timed", rate=1000.0, ready_topics=["/camera/image_raw", "/uav/ground_truth"])
+    playbacks.append(playback.start())
+    assert ros.spin_until(lambda: playback.done() and len(truths) == FRAMES and len(images) == FRAMES)
+    assert playback.result == 0 and playback.node.counters["dropped"] == 1
+    assert "/camera/image_raw: message at 1010000000 ns does not deserialise" in playback.node.last_error
+    custom = ros.add(BagPlayer(context=ros.context, parameter_overrides=[Parameter("bag", value=str(tmp_path / "custom"))]))
+    assert custom.play(ros.executor) == 0 and custom.counters["published"] == 0
+
+
+def test_missing_and_corrupt_bags_fail_start_up(ros, tmp_path):
+    with pytest.raises(ConfigError, match="bag: '.*nothing' does not exist"):
+        BagPlayer(context=ros.context, parameter_overrides=[Parameter("bag", value=str(tmp_path / "nothing"))])
+    bag = _bag(tmp_path)
+    mcap = next(bag.glob("*.mcap"))
+    mcap.write_bytes(mcap.read_bytes()[:200])
+    with pytest.raises(ConfigError, match="is not a readable rosbag2 bag"):
+        BagPlayer(context=ros.context, parameter_overrides=[Parameter("bag", value=str(bag))])
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ConfigError, match="is not a readable rosbag2 bag.*metadata"):
+        BagPlayer(context=ros.context, parameter_overrides=[Parameter("bag", value=str(tmp_path / "empty"))])
+
+
+@pytest.mark.parametrize(
+    "params, message",
+    [
+        ({}, "bag: no bag given"),
+        ({"mode": "fast"}, "mode: 'fast' is not one of"),
+        ({"rate": 0.0}, "rate must be > 0"),
+        ({"mode": "paced", "pace_topic": "/nope"}, "pace_topic: '/nope' is not a playable topic"),
+        ({"mode": "paced", "pace_topic": "/uav/ground_truth", "ack_type": "std_msgs/msg/String"}, "ack_type: 'std_msgs/msg/String' is not an installed message type with a header"),
+        ({"mode": "paced", "ack_type": "nope_msgs/msg/Nope"}, "ack_type: 'nope_msgs/msg/Nope'"),
+    ],
+)
+def test_bad_parameters_fail_start_up(ros, tmp_path, params, message):
+    if params:
+        params = {"bag": str(_bag(tmp_path)), **params}
+    with pytest.raises(ConfigError, match=message):
+        BagPlayer(context=ros.context, parameter_overrides=[Parameter(k, value=v) for k, v in params.items()])
