@@ -323,9 +323,13 @@ class GAbFConfig:
         return np.array(getattr(self, f"{name}_sigma_m")), np.radians(getattr(self, f"{name}_sigma_deg"))
 
 
-def _top(particles: ParticleSet, count: int) -> ParticleSet:
-    """The ``count`` highest-weight particles, best first."""
-    return particles.take(np.argsort(-particles.weight, kind="stable")[:count])
+def _top(particles: ParticleSet, count: int, distinct: bool = False) -> ParticleSet:
+    """The ``count`` highest-weight particles, best first; with ``distinct`` each pose once
+    (Top A must not hold one pose twice, or crossover would mate it with itself)."""
+    candidates = np.arange(len(particles))
+    if distinct:
+        _, candidates = np.unique(np.hstack([particles.pos, particles.quat]), axis=0, return_index=True)
+    return particles.take(candidates[np.argsort(-particles.weight[candidates], kind="stable")][:count])
 
 
 def crossover(a_pos, a_quat, b_pos, b_quat, count: int, rng: np.random.Generator) -> tuple:
@@ -357,6 +361,8 @@ class GAbF:
         self.config = config
 
     def _phase(self, top: ParticleSet) -> str:
+        if len(top) < 2:  # a single distinct pose so far: nothing to cross over yet
+            return BOOTSTRAP
         second = top.weight[1]
         return FINE if second > self.config.t_coarse else COARSE if second > self.config.t_min else BOOTSTRAP
 
@@ -374,20 +380,20 @@ class GAbF:
         phase, step, restarts = BOOTSTRAP, 0, 0
         for it in range(iterations):
             pop = pop.with_weight(evaluate(score, pop))
-            elite = _top(pop if elite is None else ParticleSet.concat([elite, pop]), a)
-            top = _top(pop if top is None else ParticleSet.concat([top, pop]), a)
+            elite = _top(pop if elite is None else ParticleSet.concat([elite, pop]), a, distinct=True)
+            top = _top(pop if top is None else ParticleSet.concat([top, pop]), a, distinct=True)
             if self._phase(top) != phase:
                 phase, step = self._phase(top), 0
             elif phase == FINE and step >= cfg.fine_steps:
                 break
             elif phase != FINE and step >= self._limit(phase) and restarts < cfg.max_restarts:
-                restarts, top = restarts + 1, _top(pop, a)
+                restarts, top = restarts + 1, _top(pop, a, distinct=True)
                 phase, step = BOOTSTRAP, 0
             if it == iterations - 1:
                 break
             pop = self._move(pop, top, phase, step, rng)
             step += 1
-        keep = _top(pop, len(pop) - a)
+        keep = _top(pop, len(pop) - len(elite))
         return ParticleSet.concat([keep, elite])
 
     def _move(self, pop: ParticleSet, top: ParticleSet, phase: str, step: int, rng) -> ParticleSet:

@@ -1,0 +1,276 @@
+"""Pose optimisers of §5.5 on a synthetic objective with a known optimum."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+from scipy.spatial.transform import Rotation
+
+from uav_landing_vision.geometry import geodesic_angle, quat_to_euler_zyx
+from uav_landing_vision.tracking import (
+    PFO,
+    PSO,
+    ConstrictedPSO,
+    ConstrictedPSOConfig,
+    GAbF,
+    GAbFConfig,
+    ParticleSet,
+    PFOConfig,
+    PSOConfig,
+    pfo_noise,
+)
+from uav_landing_vision.tracking import optimisation as opt
+
+M = 100
+T_STAR = np.array([0.3, -0.2, 5.0])
+Q_STAR = Rotation.from_euler("ZYX", [40.0, -20.0, 10.0], degrees=True).as_quat()
+SIGMA, KAPPA = 0.5, 0.6
+
+
+def pose_score(pos, quat) -> np.ndarray:
+    """exp(−‖t − t*‖²/σ² − angle(q, q*)²/κ²): 1 at the optimum."""
+    d2 = np.sum((pos - T_STAR) ** 2, axis=-1)
+    return np.exp(-d2 / SIGMA**2 - geodesic_angle(quat, Q_STAR) ** 2 / KAPPA**2)
+
+
+def objective(particles: ParticleSet) -> np.ndarray:
+    return pose_score(particles.pos, particles.quat)
+
+
+class Counting:
+    """Wraps an objective and records the batch size of each call."""
+
+    def __init__(self, score=objective):
+        self.score, self.batches = score, []
+
+    def __call__(self, particles):
+        self.batches.append(len(particles))
+        return self.score(particles)
+
+
+def start(seed=0, spread_m=0.5, spread_rad=0.5, m=M) -> ParticleSet:
+    rng = np.random.default_rng(seed)
+    pos = T_STAR + rng.normal(size=(m, 3)) * spread_m
+    quat = (Rotation.from_quat(Q_STAR) * Rotation.from_rotvec(rng.normal(size=(m, 3)) * spread_rad)).as_quat()
+    return ParticleSet.from_poses(pos, quat, state={"id": np.arange(m)})
+
+
+OPTIMISERS = {
+    "pfo-noise": lambda: PFO(PFOConfig(schedule="noise")),
+    "pfo-3phase": lambda: PFO(PFOConfig(schedule="3phase")),
+    "pfo-iterative": lambda: PFO(PFOConfig(schedule="iterative")),
+    "pfo-systematic": lambda: PFO(PFOConfig(schedule="iterative", resampling="systematic")),
+    "pso": lambda: PSO(),
+    "constricted-pso": lambda: ConstrictedPSO(),
+    "gabf": lambda: GAbF(),
+}
+
+
+@pytest.fixture(scope="module")
+def results():
+    """Each optimiser's output after 20 iterations from the same start, and its call log."""
+    out = {}
+    for name, make in OPTIMISERS.items():
+        counter = Counting()
+        out[name] = (make().run(start(), counter, np.random.default_rng(1), 20), counter.batches)
+    return out
+
+
+@pytest.mark.parametrize("name", sorted(OPTIMISERS))
+def test_improves_the_best_score_and_approaches_the_optimum(name, results):
+    """The swarms and GAbF close most of the score gap; PFO with the tables' small translation
+    noise (5 mm in the iterative schedule) mostly selects, so it must close less."""
+    refined, _ = results[name]
+    first = start().with_weight(objective(start())).best()
+    initial, best = first.weight[0], refined.best()
+    closed = 0.3 if name.startswith("pfo") else 0.9
+    assert best.weight[0] > initial + closed * (1.0 - initial)
+    assert np.linalg.norm(best.pos[0] - T_STAR) < np.linalg.norm(first.pos[0] - T_STAR)
+    assert geodesic_angle(best.quat[0], Q_STAR) < geodesic_angle(first.quat[0], Q_STAR)
+
+
+@pytest.mark.parametrize("name", sorted(OPTIMISERS))
+def test_one_batched_objective_call_per_iteration(name, results):
+    refined, batches = results[name]
+    assert 1 <= len(batches) <= 20 and set(batches) == {M}
+    if not name.startswith("gabf"):
+        assert len(batches) == 20
+    assert len(refined) == M
+
+
+@pytest.mark.parametrize("name", sorted(OPTIMISERS))
+def test_weights_are_the_scores_of_the_returned_poses(name, results):
+    refined, _ = results[name]
+    np.testing.assert_allclose(refined.weight, objective(refined), rtol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(refined.quat, axis=1), 1.0, atol=1e-12)
+
+
+@pytest.mark.parametrize("name", sorted(OPTIMISERS))
+def test_same_seed_same_result(name):
+    a = OPTIMISERS[name]().run(start(), objective, np.random.default_rng(3), 5)
+    b = OPTIMISERS[name]().run(start(), objective, np.random.default_rng(3), 5)
+    np.testing.assert_array_equal(a.pos, b.pos)
+    np.testing.assert_array_equal(a.quat, b.quat)
+
+
+def test_pso_keeps_each_particle_in_its_slot_and_never_loses_the_best(results):
+    for name in ("pso", "constricted-pso"):
+        refined, _ = results[name]
+        np.testing.assert_array_equal(refined.state["id"], np.arange(M))
+        assert np.all(refined.weight >= objective(start()) - 1e-15)
+
+
+def test_pfo_carries_velocities_and_state_with_the_ancestors():
+    p = start()
+    p = ParticleSet(p.pos, p.quat, np.arange(M)[:, None] * np.ones(3), p.vel, p.weight, p.state)
+    refined = PFO(PFOConfig(schedule="iterative")).run(p, objective, np.random.default_rng(0), 3)
+    np.testing.assert_array_equal(refined.vel[:, 0], refined.state["id"])
+    assert len(set(refined.state["id"])) < M  # resampling replicated some ancestors
+
+
+def test_3phase_schedule_follows_tables_6_6_and_6_7():
+    cfg = PFOConfig(schedule="3phase", dt=0.034)
+    rows = [((0.05, 0.05, 0.01), 15.0)] * 3 + [((0.035, 0.035, 0.005), 7.0)] * 3 + [((0.0025,) * 3, 4.0)] * 4
+    for k, (trans, rot_deg) in enumerate(rows, start=1):
+        t, rate = pfo_noise(cfg, k)
+        np.testing.assert_allclose(t, trans)
+        np.testing.assert_allclose(np.degrees(rate * cfg.dt), rot_deg)
+
+
+def test_iterative_schedule_follows_tables_6_6_and_6_7():
+    cfg = PFOConfig(schedule="iterative")
+    for k in range(1, 11):
+        t, rate = pfo_noise(cfg, k)
+        np.testing.assert_allclose(t, 0.005)
+        np.testing.assert_allclose(np.degrees(rate * cfg.dt), 18.0 - k)
+    assert np.all(pfo_noise(cfg, 40)[1] > 0.0)
+
+
+def test_noise_schedule_is_constant_section_6_7_1_by_default_and_table_6_6_on_request():
+    for k in (1, 7):
+        t, rate = pfo_noise(PFOConfig(), k)
+        np.testing.assert_allclose(t, [0.1, 0.1, 0.2])
+        np.testing.assert_allclose(rate, 2.62)
+    t, rate = pfo_noise(opt.SECTION_6_6_NOISE, 1)
+    np.testing.assert_allclose(t, [0.05, 0.05, 0.01])
+    np.testing.assert_allclose(np.degrees(rate * opt.SECTION_6_6_NOISE.dt), 5.0)
+
+
+def test_pfo_adds_the_scheduled_noise():
+    """With a flat objective and deterministic resampling of uniform weights the particles only
+    move by ζ: its sample standard deviations match the schedule."""
+    m = 4000
+    p = start(m=m)
+    cfg = PFOConfig(schedule="noise", resampling="minimum_sampling", noise_rate_sigma=(1.0, 2.0, 3.0))
+    moved = PFO(cfg).run(p, lambda s: np.ones(len(s)), np.random.default_rng(2), 1)
+    np.testing.assert_allclose(np.std(moved.pos - p.pos, axis=0), [0.1, 0.1, 0.2], rtol=0.06)
+    rates = opt.rotvec_between(p.quat, moved.quat) / cfg.dt
+    np.testing.assert_allclose(np.std(rates, axis=0), [1.0, 2.0, 3.0], rtol=0.06)
+
+
+def test_constriction_coefficient_is_5_22():
+    assert ConstrictedPSOConfig().gamma == pytest.approx(0.729843788, rel=1e-9)  # Clerc & Kennedy
+    assert ConstrictedPSOConfig(k=0.5).gamma == pytest.approx(0.5 * 0.729843788, rel=1e-9)
+
+
+def test_neighbourhood_distance_is_5_19():
+    pos = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
+    quat = np.array([[0.0, 0.0, 0.0, 1.0], Rotation.from_euler("z", 90, degrees=True).as_quat()])
+    d = opt.neighbourhood_distance(pos, quat, sensitivity=5.0)
+    np.testing.assert_allclose(d, [[0.0, 90 / 180 * 5 + 1.0], [3.5, 0.0]], atol=1e-12)
+
+
+def test_crossover_takes_every_attribute_from_one_parent():
+    rng = np.random.default_rng(0)
+    qa = Rotation.from_euler("ZYX", [30, 10, -20], degrees=True).as_quat()
+    qb = Rotation.from_euler("ZYX", [-50, 25, 60], degrees=True).as_quat()
+    pa, pb = np.array([1.0, 2.0, 3.0]), np.array([-1.0, -2.0, -3.0])
+    pos, quat = opt.crossover(pa, qa, pb, qb, 200, rng)
+    genes = np.concatenate([pos, quat_to_euler_zyx(quat)], axis=1)
+    a = np.concatenate([pa, quat_to_euler_zyx(qa)])
+    b = np.concatenate([pb, quat_to_euler_zyx(qb)])
+    from_a, from_b = np.isclose(genes, a), np.isclose(genes, b)
+    assert np.all(from_a | from_b) and from_a.any(axis=0).all() and from_b.any(axis=0).all()
+
+
+def test_gabf_stops_after_the_fine_phase_on_an_easy_objective():
+    counter = Counting()
+    GAbF().run(start(spread_m=0.1, spread_rad=0.1), counter, np.random.default_rng(0), 60)
+    assert len(counter.batches) < 60
+
+
+def test_gabf_uses_the_whole_budget_when_no_pose_reaches_t_min():
+    counter = Counting(lambda p: 0.1 * objective(p))
+    refined = GAbF().run(start(), counter, np.random.default_rng(0), 40)
+    assert len(counter.batches) == 40
+    assert refined.weight.max() >= 0.1 * objective(start()).max()
+
+
+def test_gabf_keeps_the_b_best_input_particles():
+    p = start().with_weight(np.arange(M, dtype=float))
+    refined = GAbF(GAbFConfig(top_b=30)).run(p, objective, np.random.default_rng(0), 1)
+    assert len(refined) == 30
+    assert set(refined.state["id"]) <= set(range(70, 100))
+
+
+@pytest.mark.parametrize(
+    "make",
+    [
+        lambda: PFOConfig(schedule="linear"),
+        lambda: PFOConfig(resampling="bogus"),
+        lambda: PFOConfig(noise_trans_sigma_m=(0.1, -0.1, 0.2)),
+        lambda: PSOConfig(inertia=1.5),
+        lambda: PSOConfig(neighbours=0),
+        lambda: ConstrictedPSOConfig(c1=1.0, c2=2.0),
+        lambda: ConstrictedPSOConfig(k=0.0),
+        lambda: GAbFConfig(t_min=0.5, t_coarse=0.3),
+        lambda: GAbFConfig(top_a=1),
+        lambda: GAbFConfig(fine_sigma_deg=(15.0, 0.0, 15.0)),
+    ],
+)
+def test_invalid_configs_raise(make):
+    with pytest.raises(ValueError):
+        make()
+
+
+@pytest.mark.parametrize("bad", [lambda p: np.ones(len(p) + 1), lambda p: -np.ones(len(p)), lambda p: np.full(len(p), np.nan)])
+def test_invalid_objective_output_raises(bad):
+    with pytest.raises(ValueError, match="objective"):
+        PSO().run(start(), bad, np.random.default_rng(0), 1)
+
+
+def test_zero_iterations_is_an_error():
+    with pytest.raises(ValueError, match="at least one iteration"):
+        PFO().run(start(), objective, np.random.default_rng(0), 0)
+
+
+unit_quats = arrays(np.float64, 4, elements=st.floats(-1.0, 1.0)).filter(lambda q: np.linalg.norm(q) > 0.1)
+rotvecs = arrays(np.float64, 3, elements=st.floats(-10.0, 10.0))
+
+
+@settings(max_examples=60, deadline=None)
+@given(unit_quats, rotvecs)
+def test_increments_keep_quaternions_unit(q, r):
+    q = q / np.linalg.norm(q)
+    np.testing.assert_allclose(np.linalg.norm(opt.rotate_body(q, r)), 1.0, atol=1e-12)
+
+
+@settings(max_examples=60, deadline=None)
+@given(unit_quats, unit_quats)
+def test_tangent_difference_and_objective_are_sign_invariant(q, p):
+    q, p = q / np.linalg.norm(q), p / np.linalg.norm(p)
+    r = opt.rotvec_between(q, p)
+    assert np.linalg.norm(r) == pytest.approx(geodesic_angle(q, p), abs=1e-9)  # (5.20)
+    for a, b in ((q, p), (-q, p), (q, -p), (-q, -p)):
+        assert np.linalg.norm(opt.rotvec_between(a, b)) == pytest.approx(np.linalg.norm(r), abs=1e-9)
+        assert geodesic_angle(opt.rotate_body(a, opt.rotvec_between(a, b)), p) < 1e-7
+    np.testing.assert_allclose(pose_score(T_STAR, q), pose_score(T_STAR, -q), atol=1e-12)
+
+
+def test_gabf_copes_with_a_resampled_input_of_one_repeated_pose():
+    one = start().take(np.zeros(M, dtype=int))
+    counter = Counting()
+    refined = GAbF().run(one, counter, np.random.default_rng(0), 30)
+    assert len(refined) == M and set(counter.batches) == {M}
+    assert refined.weight.max() > objective(one)[0]

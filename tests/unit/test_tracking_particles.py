@@ -1,0 +1,97 @@
+"""ParticleSet: validation, selection with per-particle state, weights and (6.5)."""
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from uav_landing_vision.tracking import ParticleSet
+
+
+def make(m=5, seed=0, **state):
+    rng = np.random.default_rng(seed)
+    quat = Rotation.random(m, random_state=rng).as_quat()
+    return ParticleSet(
+        rng.normal(size=(m, 3)), quat, rng.normal(size=(m, 3)), rng.normal(size=(m, 3)), rng.random(m), state
+    )
+
+
+def test_quaternions_are_stored_sign_canonical():
+    q = np.array([[0.0, 0.0, 0.6, -0.8]])
+    p = ParticleSet.from_poses(np.zeros((1, 3)), q)
+    np.testing.assert_allclose(p.quat, -q)
+
+
+def test_arrays_are_copied():
+    pos = np.zeros((2, 3))
+    p = ParticleSet.from_poses(pos, np.tile([0, 0, 0, 1.0], (2, 1)))
+    pos[0, 0] = 9.0
+    assert p.pos[0, 0] == 0.0
+
+
+@pytest.mark.parametrize(
+    "field, value, message",
+    [
+        ("pos", np.zeros((5, 2)), "pos"),
+        ("quat", np.zeros((5, 4)), "unit norm"),
+        ("quat", np.zeros((4, 4)), "quat"),
+        ("vel", np.full((5, 3), np.nan), "finite"),
+        ("omega", np.zeros((5,)), "omega"),
+        ("weight", -np.ones(5), "non-negative"),
+        ("weight", np.full(5, np.inf), "finite"),
+    ],
+)
+def test_invalid_fields_raise(field, value, message):
+    p = make()
+    fields = dict(pos=p.pos, quat=p.quat, vel=p.vel, omega=p.omega, weight=p.weight)
+    fields[field] = value
+    with pytest.raises(ValueError, match=message):
+        ParticleSet(**fields)
+
+
+def test_state_must_have_leading_axis_m():
+    with pytest.raises(ValueError, match="leading axis"):
+        make(cov=np.zeros((4, 3, 3)))
+
+
+def test_take_moves_every_array_and_the_state_together():
+    p = make(m=6, cov=np.arange(6)[:, None, None] * np.ones((6, 2, 2)))
+    idx = np.array([3, 3, 0, 5])
+    t = p.take(idx)
+    for name in ("pos", "quat", "vel", "omega", "weight"):
+        np.testing.assert_array_equal(getattr(t, name), getattr(p, name)[idx])
+    np.testing.assert_array_equal(t.state["cov"][:, 0, 0], idx)
+    np.testing.assert_array_equal(p.take(idx, weight=np.ones(4)).weight, np.ones(4))
+
+
+def test_concat_keeps_order_and_requires_matching_state():
+    a, b = make(m=2, seed=1, tag=np.array([1, 2])), make(m=3, seed=2, tag=np.array([3, 4, 5]))
+    c = ParticleSet.concat([a, b])
+    assert len(c) == 5
+    np.testing.assert_array_equal(c.state["tag"], [1, 2, 3, 4, 5])
+    np.testing.assert_array_equal(c.pos, np.vstack([a.pos, b.pos]))
+    with pytest.raises(ValueError, match="state keys"):
+        ParticleSet.concat([a, make(m=2)])
+
+
+def test_effective_size_is_6_5():
+    p = make(m=8)
+    w = p.weight / p.weight.sum()
+    assert p.effective_size() == pytest.approx(1.0 / np.sum(w**2))
+    assert p.with_weight(np.full(8, 3.0)).effective_size() == pytest.approx(8.0)
+    assert p.with_weight(np.eye(8)[2]).effective_size() == pytest.approx(1.0)
+
+
+def test_normalised_weights_and_zero_sum():
+    p = make()
+    assert p.normalised_weights().sum() == pytest.approx(1.0)
+    with pytest.raises(ValueError, match="sum to zero"):
+        p.with_weight(np.zeros(5)).normalised_weights()
+
+
+def test_best_is_the_highest_weight():
+    p = make(m=7)
+    b = p.best()
+    assert len(b) == 1 and p.best_index() == int(np.argmax(p.weight))
+    np.testing.assert_array_equal(b.pos[0], p.pos[np.argmax(p.weight)])
+    with pytest.raises(ValueError, match="empty"):
+        p.take(np.array([], dtype=int)).best()

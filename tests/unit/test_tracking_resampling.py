@@ -1,0 +1,182 @@
+"""Resampling schemes of App. B: unbiasedness where it holds, defining properties elsewhere."""
+
+import numpy as np
+import pytest
+
+from uav_landing_vision.tracking import RESAMPLERS, fixed_size, resample
+from uav_landing_vision.tracking import resampling as rs
+
+M = 20
+REPS = 3000
+COUNT_UNBIASED = ["multinomial", "stratified", "systematic", "residual", "residual_systematic", "branch_kill"]
+LOW_VARIANCE = ["stratified", "systematic", "residual", "residual_systematic", "branch_kill"]
+
+
+@pytest.fixture(scope="module")
+def weights():
+    w = np.random.default_rng(7).gamma(0.7, size=M) + 0.05  # every M·w above ~0.05: seen often
+    w[4] *= 6.0  # one dominant particle, several copies
+    return w / w.sum()
+
+
+def copy_counts(name, w, reps=REPS, seed=0, **options):
+    rng = np.random.default_rng(seed)
+    return np.array([np.bincount(resample(name, w, rng, **options).indices, minlength=len(w)) for _ in range(reps)])
+
+
+def carried_weight(name, w, reps=REPS, seed=0, **options):
+    rng = np.random.default_rng(seed)
+    out = np.zeros((reps, len(w)))
+    for r in range(reps):
+        res = resample(name, w, rng, **options)
+        np.add.at(out[r], res.indices, res.weights)
+    return out
+
+
+def assert_mean(samples, expected, slack=0.0, integer=False):
+    """Monte-Carlo mean within 5 standard errors (plus a proven bias bound ``slack``).
+
+    For integer counts the variance is at least ``f(1 − f)``, ``f`` the fractional part of the
+    mean, which guards the standard error against an all-equal sample."""
+    mean = samples.mean(axis=0)
+    var = samples.var(axis=0, ddof=1)
+    if integer:
+        frac = expected - np.floor(expected)
+        var = np.maximum(var, frac * (1.0 - frac))
+    se = np.sqrt(var / len(samples))
+    assert np.all(np.abs(mean - expected) <= 5.0 * se + slack + 1e-12), np.abs(mean - expected) / (se + 1e-12)
+
+
+def test_registry_holds_the_ten_schemes():
+    assert len(RESAMPLERS) == 10
+
+
+@pytest.mark.parametrize("name", COUNT_UNBIASED)
+def test_expected_copies_are_m_times_w(name, weights):
+    assert_mean(copy_counts(name, weights), M * weights, integer=True)
+
+
+@pytest.mark.parametrize("name", ["reallocation", "optimal"])
+def test_weight_carrying_schemes_are_unbiased_in_carried_weight(name, weights):
+    options = {"size": 8} if name == "optimal" else {}
+    assert_mean(carried_weight(name, weights, **options), weights)
+
+
+def test_reallocation_counts_are_floor_above_threshold_and_at_most_one_below(weights):
+    counts = copy_counts("reallocation", weights, reps=500)
+    big = M * weights >= 1.0
+    assert np.all(counts[:, big] == np.floor(M * weights[big]))
+    assert counts[:, ~big].max() == 1
+    assert_mean(counts[:, ~big], M * weights[~big], integer=True)  # survival probability M·w below ℵ
+    res = resample("reallocation", weights, np.random.default_rng(3))
+    np.testing.assert_allclose(res.weights[res.indices == 4], weights[4] / np.floor(M * weights[4]))
+
+
+def test_optimal_keeps_heavy_particles_once_and_never_replicates(weights):
+    counts = copy_counts("optimal", weights, reps=500, size=8)
+    assert counts.max() == 1 and np.all(counts.sum(axis=1) == 8)
+    assert np.all(counts[:, 4] == 1)  # the dominant particle is above the threshold
+    res = resample("optimal", weights, np.random.default_rng(0), size=8)
+    assert res.weights[res.indices == 4][0] == pytest.approx(weights[4])
+
+
+def test_optimal_at_full_size_keeps_every_positive_particle():
+    w = np.array([0.5, 0.0, 0.2, 0.3])
+    res = resample("optimal", w, np.random.default_rng(0))
+    np.testing.assert_array_equal(res.indices, [0, 2, 3])
+    np.testing.assert_allclose(res.weights, [0.5, 0.2, 0.3])
+
+
+def test_metropolis_is_unbiased_up_to_its_proven_chain_bias(weights):
+    # Independent MH with a uniform proposal: per-ancestor TV distance <= (1 - 1/(M max w))^S.
+    steps = 80
+    bias = M * (1.0 - 1.0 / (M * weights.max())) ** steps
+    assert bias < 1e-3
+    assert_mean(copy_counts("metropolis", weights, steps=steps), M * weights, slack=bias, integer=True)
+
+
+def test_metropolis_with_a_short_chain_is_biased(weights):
+    counts = copy_counts("metropolis", weights, steps=1)
+    se = counts[:, 4].std(ddof=1) / np.sqrt(REPS)
+    assert M * weights[4] - counts[:, 4].mean() > 10 * se
+
+
+def test_minimum_sampling_is_deterministic_rounding(weights):
+    a = resample("minimum_sampling", weights, np.random.default_rng(0)).indices
+    b = resample("minimum_sampling", weights, np.random.default_rng(99)).indices
+    np.testing.assert_array_equal(a, b)
+    counts = np.bincount(a, minlength=M)
+    assert counts.sum() == M and np.all(np.abs(counts - M * weights) < 1.0)
+    residuals = M * weights - np.floor(M * weights)
+    extra = counts - np.floor(M * weights)
+    assert residuals[extra == 1].min() >= residuals[extra == 0].max()
+
+
+def test_residual_systematic_matches_the_sequential_recursion(weights):
+    for seed in range(20):
+        u = np.random.default_rng(seed).random() / M
+        counts = []
+        for w in weights:  # Bolić et al. (2003), one pass with the fractional carry Δu
+            n = int(np.floor((w - u) * M)) + 1
+            u += n / M - w
+            counts.append(n)
+        got = np.bincount(rs.residual_systematic(weights, np.random.default_rng(seed)).indices, minlength=M)
+        np.testing.assert_array_equal(got, counts)
+
+
+def test_branch_kill_counts_are_floor_or_floor_plus_one(weights):
+    counts = copy_counts("branch_kill", weights, reps=500)
+    assert np.all((counts == np.floor(M * weights)) | (counts == np.floor(M * weights) + 1))
+    assert len(set(counts.sum(axis=1))) > 1  # the particle number changes
+
+
+@pytest.mark.parametrize("name", LOW_VARIANCE)
+def test_copy_count_variance_is_below_multinomial(name, weights):
+    multinomial = copy_counts("multinomial", weights, seed=1).var(axis=0).sum()
+    assert copy_counts(name, weights, seed=1).var(axis=0).sum() < 0.6 * multinomial
+
+
+@pytest.mark.parametrize("name", sorted(RESAMPLERS))
+def test_same_seed_same_indices(name, weights):
+    a = resample(name, weights, np.random.default_rng(5))
+    b = resample(name, weights, np.random.default_rng(5))
+    np.testing.assert_array_equal(a.indices, b.indices)
+    np.testing.assert_array_equal(a.weights, b.weights)
+
+
+@pytest.mark.parametrize("name", sorted(RESAMPLERS))
+def test_zero_weight_particles_are_never_drawn_and_output_is_in_range(name):
+    w = np.array([0.0, 0.3, 0.1, 0.0, 0.25, 0.35, 0.0, 1e-3])
+    for seed in range(50):
+        idx = resample(name, w, np.random.default_rng(seed)).indices
+        assert idx.min() >= 0 and idx.max() < len(w)
+        assert not np.isin(idx, [0, 3, 6]).any()
+
+
+@pytest.mark.parametrize("name", ["multinomial", "stratified", "systematic", "residual", "minimum_sampling"])
+def test_a_single_heavy_particle_takes_every_copy(name):
+    res = resample(name, np.eye(6)[2] * 3.0, np.random.default_rng(0))
+    np.testing.assert_array_equal(res.indices, np.full(6, 2))
+    np.testing.assert_allclose(res.weights, 1.0 / 6.0)
+
+
+@pytest.mark.parametrize("bad", [np.array([0.5, -0.1]), np.array([np.nan, 1.0]), np.zeros(3), np.ones((2, 2)), []])
+def test_invalid_weights_raise(bad):
+    with pytest.raises(ValueError, match="resampling"):
+        resample("systematic", bad, np.random.default_rng(0))
+
+
+def test_unknown_scheme_names_the_known_ones():
+    with pytest.raises(ValueError, match="unknown resampling scheme 'bogus'.*systematic"):
+        resample("bogus", np.ones(3), np.random.default_rng(0))
+
+
+@pytest.mark.parametrize("name", ["branch_kill", "reallocation", "optimal"])
+def test_fixed_size_restores_the_particle_number(name, weights):
+    rng = np.random.default_rng(11)
+    for _ in range(50):
+        res = resample(name, weights, rng, **({"size": 12} if name == "optimal" else {}))
+        idx = fixed_size(res, weights, rng, M)
+        assert len(idx) == M and np.all(np.diff(idx) >= 0)
+        if len(res.indices) >= M:  # only dropping: a sub-multiset of the scheme's copies
+            assert np.all(np.bincount(idx, minlength=M) <= np.bincount(res.indices, minlength=M))
