@@ -1,0 +1,27 @@
+"""The ``uav-landing`` command: every registered subcommand parses, and the demo writes frames."""
+
+import pytest
+
+from uav_landing_vision.cli import build_parser, main
+
+
+def test_every_subcommand_has_help(capsys):
+    parser = build_parser()
+    commands = parser._subparsers._group_actions[0].choices
+    assert {"demo", "bench"} <= set(commands)
+    for name in commands:
+        with pytest.raises(SystemExit) as exc:
+            parser.parse_args([name, "--help"])
+        assert exc.value.code == 0
+    capsys.readouterr()
+
+
+def test_demo_renders_flyby_frames(tmp_path, capsys):
+    assert main(["demo", "--out", str(tmp_path), "--frames", "2"]) == 0
+    assert sorted(p.name for p in tmp_path.glob("*.png")) == ["flyby_000.png", "flyby_001.png"]
+    assert str(tmp_path) in capsys.readouterr().out
+
+
+def test_demo_rejects_bad_frame_count():
+    with pytest.raises(SystemExit):
+        main(["demo", "--frames", "0"])
