@@ -4,7 +4,7 @@ Subscribes ``uav/pose`` (PoseWithCovarianceStamped) and ``uav/tracker_status`` (
 both reliable; every ``1 / mavlink.rate_hz`` seconds of node time (sim time with
 ``use_sim_time``) it ticks the core (``gcs.GcsBridge``: landing cone, stage machine, MAVLink)
 and publishes its ``LandingGuidance`` (frame ``landing``: x bow, y starboard, z down, origin at
-the net). Parameters: ``config/gcs_bridge.yaml``, validated by ``gcs.config_from_parameters``.
+the net). Parameters: ``config/gcs_bridge.yaml``, validated into ``gcs.GcsBridgeConfig``.
 A malformed pose (NaN, non-unit quaternion, bad covariance) or an unknown tracker state is
 logged and dropped; no position is sent for it.
 """
@@ -15,7 +15,7 @@ from geometry_msgs.msg import PoseWithCovarianceStamped
 from uav_landing_msgs.msg import LandingGuidance, TrackerStatus
 
 from ..config import ConfigError
-from ..gcs import GcsBridge, config_from_parameters
+from ..gcs import GcsBridge, GcsBridgeConfig
 from .base import LandingNode, run_node, stamp_ns
 from .qos import RELIABLE_QOS
 
@@ -25,10 +25,7 @@ LANDING_FRAME_ID = "landing"
 class GcsBridgeNode(LandingNode):
     def __init__(self, **kwargs):
         super().__init__("gcs_bridge", **kwargs)
-        try:
-            self.config = config_from_parameters(self.parameter_mapping())
-        except ValueError as exc:
-            raise ConfigError(f"gcs_bridge parameters: {exc}") from exc
+        self.config = self.load_config(GcsBridgeConfig)
         try:
             self._bridge = GcsBridge(self.config)
         except (OSError, ValueError) as exc:

@@ -1,0 +1,114 @@
+"""``gcs_bridge`` in-process over DDS: pose → landing guidance and MAVLink; bad input dropped."""
+
+import math
+from pathlib import Path
+
+import pytest
+from geometry_msgs.msg import PoseWithCovarianceStamped
+from rclpy.parameter import Parameter
+from test_node_common import ros  # noqa: F401 (fixture)
+
+from uav_landing_msgs.msg import LandingGuidance, TrackerStatus
+from uav_landing_vision.config import ConfigError
+from uav_landing_vision.gcs.mavlink import open_link
+from uav_landing_vision.nodes.gcs_bridge import GcsBridgeNode
+from uav_landing_vision.nodes.qos import RELIABLE_QOS
+
+PARAMS = Path(__file__).parents[2] / "config" / "gcs_bridge.yaml"
+
+
+@pytest.fixture
+def mavlink_receiver():
+    conn = open_link("udpin:127.0.0.1:0", 255, 190)
+    yield conn
+    conn.close()
+
+
+class Rig:
+    def __init__(self, ros, port: int):
+        self.ros = ros
+        self.node = ros.add(GcsBridgeNode(
+            context=ros.context, cli_args=["--ros-args", "--params-file", str(PARAMS)],
+            parameter_overrides=[Parameter("mavlink.connection", value=f"udpout:127.0.0.1:{port}")],
+        ))
+        self.pose_pub = ros.probe.create_publisher(PoseWithCovarianceStamped, "uav/pose", RELIABLE_QOS)
+        self.status_pub = ros.probe.create_publisher(TrackerStatus, "uav/tracker_status", RELIABLE_QOS)
+        self.guidance = ros.collect(LandingGuidance, "uav/landing_guidance", RELIABLE_QOS)
+        assert ros.spin_until(
+            lambda: self.pose_pub.get_subscription_count() and self.status_pub.get_subscription_count() and self.guidance
+        ), "discovery"
+
+    def send_status(self, state: int):
+        before = self.node.counters["status_received"]
+        self.status_pub.publish(TrackerStatus(state=state))
+        assert self.ros.spin_until(lambda: self.node.counters["status_received"] > before)
+
+    def pose(self, x=0.5, y=-2.0, z=30.0, quat=(0.0, 0.0, 0.0, 1.0)):
+        msg = PoseWithCovarianceStamped()
+        msg.header.stamp = self.ros.probe.get_clock().now().to_msg()
+        msg.header.frame_id = "camera_optical_frame"
+        p, q = msg.pose.pose.position, msg.pose.pose.orientation
+        p.x, p.y, p.z = x, y, z
+        q.x, q.y, q.z, q.w = quat
+        msg.pose.covariance = [0.01 if i % 7 == 0 else 0.0 for i in range(36)]
+        return msg
+
+
+def test_a_tracked_pose_gives_guidance_and_mavlink(ros, mavlink_receiver):
+    rig = Rig(ros, mavlink_receiver.port.getsockname()[1])
+    rig.send_status(TrackerStatus.TRACKING)
+
+    def tracked():  # a fresh pose per step: the bridge ignores poses older than stale_timeout_s
+        rig.pose_pub.publish(rig.pose())
+        return any(math.isfinite(g.range) for g in rig.guidance)
+
+    assert ros.spin_until(tracked)
+    g = next(g for g in rig.guidance if math.isfinite(g.range))
+    assert g.header.frame_id == "landing" and g.stage == LandingGuidance.APPROACH
+    assert 25.0 < g.range < 40.0
+    odometry = None
+    for _ in range(100):
+        odometry = mavlink_receiver.recv_match(type="ODOMETRY", blocking=True, timeout=0.1)
+        if odometry is not None:
+            break
+    assert odometry is not None and math.isclose(math.dist((odometry.x, odometry.y, odometry.z), (0, 0, 0)), g.range, rel_tol=1e-4)
+    assert rig.node.counters["dropped"] == 0
+
+
+def test_without_inputs_guidance_says_loiter_with_no_track(ros, mavlink_receiver):
+    rig = Rig(ros, mavlink_receiver.port.getsockname()[1])
+    g = rig.guidance[-1]
+    assert g.stage == LandingGuidance.LOITER and math.isnan(g.range) and not g.inside_cone
+
+
+def test_malformed_poses_and_states_are_dropped(ros, mavlink_receiver):
+    rig = Rig(ros, mavlink_receiver.port.getsockname()[1])
+    rig.send_status(7)
+    assert rig.node.counters["dropped"] == 1 and "unknown tracker state 7" in rig.node.last_error
+    rig.send_status(TrackerStatus.TRACKING)
+    for bad, reason in [
+        (rig.pose(x=float("nan")), "pose position must be 3 finite numbers"),
+        (rig.pose(quat=(0.0, 0.0, 0.0, 0.0)), "pose quaternion must be a finite unit"),
+        (rig.pose(quat=(float("nan"), 0.0, 0.0, 1.0)), "pose quaternion must be a finite unit"),
+    ]:
+        before = rig.node.counters["dropped"]
+        rig.pose_pub.publish(bad)
+        assert ros.spin_until(lambda: rig.node.counters["dropped"] > before)
+        assert reason in rig.node.last_error
+    seen = len(rig.guidance)
+    assert ros.spin_until(lambda: len(rig.guidance) > seen + 2)  # still ticking
+    assert all(math.isnan(g.range) for g in rig.guidance) and rig.guidance[-1].stage == LandingGuidance.LOITER
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({}, "missing 6 required positional arguments: 'camera'"),
+        ({"cli_args": ["--ros-args", "--params-file", str(PARAMS)], "parameter_overrides": [Parameter("mavlink.rate_hz", value="fast")]}, "mavlink.rate_hz: expected a number"),
+        ({"cli_args": ["--ros-args", "--params-file", str(PARAMS)], "parameter_overrides": [Parameter("cone.colour", value=1)]}, r"cone: unknown key\(s\) \['colour'\]"),
+        ({"cli_args": ["--ros-args", "--params-file", str(PARAMS)], "parameter_overrides": [Parameter("mavlink.connection", value="tcp:127.0.0.1:1")]}, "mavlink: cannot open 'tcp:127.0.0.1:1'"),
+    ],
+)
+def test_bad_parameters_fail_start_up(ros, kwargs, message):
+    with pytest.raises(ConfigError, match=message):
+        GcsBridgeNode(context=ros.context, **kwargs)
