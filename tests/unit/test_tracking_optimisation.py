@@ -7,6 +7,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 from scipy.spatial.transform import Rotation
 
+from uav_landing_vision.config import ConfigError, from_mapping
 from uav_landing_vision.geometry import geodesic_angle, quat_to_euler_zyx
 from uav_landing_vision.tracking import (
     PFO,
@@ -234,10 +235,22 @@ def test_invalid_configs_raise(make):
         make()
 
 
-@pytest.mark.parametrize("bad", [lambda p: np.ones(len(p) + 1), lambda p: -np.ones(len(p)), lambda p: np.full(len(p), np.nan)])
+@pytest.mark.parametrize(
+    "bad", [lambda p: np.ones(len(p) + 1), lambda p: -np.ones(len(p)), lambda p: np.full(len(p), np.nan)]
+)
 def test_invalid_objective_output_raises(bad):
     with pytest.raises(ValueError, match="objective"):
         PSO().run(start(), bad, np.random.default_rng(0), 1)
+
+
+def test_configs_load_from_yaml_mappings():
+    cfg = from_mapping(GAbFConfig, {"t_min": 0.25, "fine_sigma_deg": [10, 10, 10]})
+    assert cfg.t_min == 0.25 and cfg.fine_sigma_deg == (10.0, 10.0, 10.0)
+    assert from_mapping(PFOConfig, {"schedule": "3phase", "resampling": "systematic"}).schedule == "3phase"
+    with pytest.raises(ConfigError, match="schedule"):
+        from_mapping(PFOConfig, {"schedule": "linear"})
+    with pytest.raises(ConfigError, match="unknown key"):
+        from_mapping(PSOConfig, {"inertial": 0.5})
 
 
 def test_zero_iterations_is_an_error():

@@ -20,7 +20,14 @@ from typing import Literal
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..geometry import euler_zyx_to_quat, geodesic_angle, omega_quat, quat_multiply, quat_normalise, quat_to_euler_zyx
+from ..geometry import (
+    euler_zyx_to_quat,
+    geodesic_angle,
+    omega_quat,
+    quat_multiply,
+    quat_normalise,
+    quat_to_euler_zyx,
+)
 from .particles import ParticleSet
 from .resampling import RESAMPLERS, fixed_size, resample
 
