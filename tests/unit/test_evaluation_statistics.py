@@ -1,0 +1,110 @@
+"""Error statistics against direct numpy computations and hand-made cases."""
+
+import json
+
+import numpy as np
+import pytest
+
+from uav_landing_vision.evaluation import (
+    STAT_KEYS,
+    SummaryError,
+    align,
+    error_statistics,
+    format_table,
+    load_summary,
+    make_summary,
+    pose_errors,
+    save_summary,
+    score,
+    statistics_table,
+    validate_summary,
+    variant_summary,
+    write_report,
+)
+from uav_landing_vision.geometry import euler_zyx_to_quat
+from uav_landing_vision.sim import Poses
+
+
+def test_statistics_match_numpy():
+    v = np.random.default_rng(0).standard_normal(1001) * 2.0 + 0.5
+    s = error_statistics(v)
+    q1, q3 = np.percentile(v, [25, 75])
+    assert s["p5"] == pytest.approx(np.percentile(v, 5))
+    assert s["median"] == pytest.approx(np.median(v))
+    assert s["p95"] == pytest.approx(np.percentile(v, 95))
+    assert s["mae"] == pytest.approx(np.abs(v).mean())
+    assert s["rmse"] == pytest.approx(np.sqrt(np.mean(v**2)))
+    assert s["sd"] == pytest.approx(np.std(v, ddof=1))
+    iqr = q3 - q1
+    assert s["outlier_pct"] == pytest.approx(100 * np.mean((v < q1 - 1.5 * iqr) | (v > q3 + 1.5 * iqr)))
+    assert s["rmse"] >= s["mae"]
+
+
+def test_hand_made_outliers_and_values():
+    s = error_statistics([1, 2, 3, 4, 100])  # q1=2, q3=4 → fences −1, 7: one outlier of five
+    assert s["outlier_pct"] == pytest.approx(20.0)
+    assert s["median"] == 3.0
+    assert s["mae"] == pytest.approx(22.0)
+    assert s["rmse"] == pytest.approx(np.sqrt((1 + 4 + 9 + 16 + 10000) / 5))
+    assert s["sd"] == pytest.approx(np.std([1, 2, 3, 4, 100], ddof=1))
+
+
+def test_nan_values_are_dropped_and_all_nan_gives_nan():
+    assert error_statistics([1.0, np.nan, 3.0])["median"] == 2.0
+    assert np.isnan(error_statistics([np.nan])["mae"])
+
+
+def test_pose_errors_flip_antipodal_and_translation():
+    q = euler_zyx_to_quat(np.radians([[10, 20, 30], [0, 0, 0], [0, 0, 0]]))
+    flip = np.array([[0, 0, 1.0, 0]])  # 180° about z
+    q_est = np.concatenate([-q[:1], flip, euler_zyx_to_quat(np.radians([[0, 0, 5]]))])
+    t = np.zeros((3, 3))
+    t_est = np.array([[3.0, 4.0, 0.0], [0, 0, 0], [0, 0, -1.0]])
+    e = pose_errors(t, q, t_est, q_est)
+    assert e["geodesic"][0] == pytest.approx(0.0, abs=1e-6)  # antipodal quaternion: same rotation
+    assert e["geodesic"][1] == pytest.approx(180.0)
+    assert abs(e["gamma"][1]) == pytest.approx(180.0)
+    assert e["geodesic"][2] == pytest.approx(5.0)
+    assert e["gamma"][2] == pytest.approx(-5.0)  # q_e = q_g ⊗ q̄_r (6.4)
+    assert e["euclidean"].tolist() == pytest.approx([5.0, 0.0, 1.0])
+    assert e["z"][2] == -1.0
+
+
+def test_score_aligns_by_stamp_and_counts_lost_frames():
+    truth = Poses(np.array([10, 20, 30, 40]), np.zeros((4, 3)), np.tile([0, 0, 0, 1.0], (4, 1)))
+    est = Poses(np.array([40, 20, 99]), np.array([[1.0, 0, 0], [0, 2.0, 0], [9, 9, 9]]), np.tile([0, 0, 0, 1.0], (3, 1)))
+    assert np.isnan(align(truth, est).trans[0]).all()
+    err = score(truth, est)
+    assert np.isnan(err["euclidean"][[0, 2]]).all()
+    assert err["euclidean"][[1, 3]].tolist() == [2.0, 1.0]
+    summary = variant_summary(err, 12.5)
+    assert summary["lost_frames_pct"] == 50.0
+    assert summary["translation_m"]["median"] == 1.5
+
+
+def test_summary_schema_roundtrip_and_rejection(tmp_path):
+    err = pose_errors(np.zeros((5, 3)), np.tile([0, 0, 0, 1.0], (5, 1)), np.ones((5, 3)), np.tile([0, 0, 0, 1.0], (5, 1)))
+    doc = make_summary("seq", 5, {"C4N2": variant_summary(err)})
+    save_summary(tmp_path / "s.json", doc)
+    assert load_summary(tmp_path / "s.json") == json.loads((tmp_path / "s.json").read_text())
+    assert set(doc["variants"]["C4N2"]["translation_m"]) == set(STAT_KEYS)
+    bad = json.loads(json.dumps(doc))
+    del bad["variants"]["C4N2"]["rotation_deg"]["sd"]
+    with pytest.raises(SummaryError):
+        validate_summary(bad)
+    with pytest.raises(SummaryError):
+        validate_summary({"sequence": "s", "frames": "5", "variants": {}})
+
+
+def test_tables_csv_and_plots(tmp_path):
+    rng = np.random.default_rng(1)
+    errs = {name: pose_errors(np.zeros((50, 3)), np.tile([0, 0, 0, 1.0], (50, 1)), rng.normal(size=(50, 3)),
+                              euler_zyx_to_quat(rng.normal(0, 0.1, (50, 3)))) for name in ("C4N2", "C5N5")}
+    text = format_table(statistics_table(errs, ("euclidean",)), "title")
+    assert "Outlier %" in text and "C5N5" in text
+    report = write_report(tmp_path, "seq", errs)
+    assert "rotation error (deg)" in report
+    for name in ("translation_error.csv", "rotation_error.csv", "translation_error.png", "rotation_error.png"):
+        assert (tmp_path / name).stat().st_size > 0
+    header = (tmp_path / "translation_error.csv").read_text().splitlines()[0]
+    assert header.split(",")[:3] == ["statistic", "C4N2 Euclidean", "C4N2 X"]

@@ -1,0 +1,116 @@
+"""Scenario loading and ground-truth trajectories: cone, speeds, attitude, ship motion, determinism."""
+
+import numpy as np
+import pytest
+
+from uav_landing_vision.geometry import matrix_to_euler_zyx, quat_to_matrix
+from uav_landing_vision.sim import ScenarioError, generators, load_scenario, make_trajectory
+from uav_landing_vision.sim.trajectory import SmoothSignal, camera_mount
+
+SHIPPED = ("normal", "complex", "video", "single_frame")
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_shipped_scenarios_load(name):
+    s = load_scenario(name)
+    assert s.name == name
+
+
+@pytest.mark.parametrize("text, match", [
+    ("approach: {}\nbogus: 1\n", "bogus"),
+    ("approach: {alpha1_deg: 2.0, alpha2_deg: 5.0}\n", "alpha2_deg < alpha1_deg"),
+    ("approach: {start_range_m: [80]}\n", "expected 2 values"),
+    ("approach: {}\nbackground: {kind: fog}\n", "background.kind"),
+    ("seed: 0\n", "exactly one of"),
+    ("approach: {}\nship: {roll_deg: lots}\n", "roll_deg"),
+])
+def test_bad_scenarios_are_clear_errors(tmp_path, text, match):
+    path = tmp_path / "bad.yaml"
+    path.write_text(text)
+    with pytest.raises(ScenarioError, match=match):
+        load_scenario(path)
+
+
+def test_unknown_scenario_name():
+    with pytest.raises(ScenarioError, match="no shipped scenario"):
+        load_scenario("nope")
+
+
+@pytest.fixture(scope="module")
+def approach():
+    s = load_scenario("normal")
+    return s, make_trajectory(s, generators(5))
+
+
+def test_approach_range_speed_and_end(approach):
+    s, tr = approach
+    dist = np.linalg.norm(tr.trans, axis=1)
+    assert 78 <= dist[0] <= 102
+    assert 4.5 <= dist[-1] <= 6.0  # ends at the net, ~5 m from the camera
+    assert np.linalg.norm(tr.uav_pos[-1]) < 0.3
+    speed = np.linalg.norm(np.diff(tr.uav_pos, axis=0), axis=1) / s.dt_s
+    closing = s.approach.airspeed_mps - s.ship.speed_mps
+    assert abs(np.median(speed) - closing) < 1.0
+    assert np.all(tr.trans[:, 2] > 0)
+
+
+def test_approach_inside_landing_cone(approach):
+    s, tr = approach
+    a = s.approach
+    r = np.linalg.norm(tr.uav_pos, axis=1)
+    inside = (r <= a.cone_start_m) & (r > 0.5)
+    p = tr.uav_pos[inside]
+    alpha = np.degrees(np.arcsin(p[:, 2] / r[inside]))
+    beta = np.degrees(np.arctan2(p[:, 1], -p[:, 0]))
+    assert alpha.min() >= a.alpha2_deg and alpha.max() <= a.alpha1_deg
+    assert np.abs(beta).max() <= a.beta2_deg / 2
+
+
+def test_attitude_upright_nose_forward_and_disturbed(approach):
+    s, tr = approach
+    # UAV attitude in M: camera rotation (optical→M) times the pose rotation.
+    euler = np.degrees(matrix_to_euler_zyx(tr.cam_rot @ quat_to_matrix(tr.quat)))
+    far = np.linalg.norm(tr.uav_pos, axis=1) > 60
+    assert np.abs(euler[:, 2]).max() < 30  # heading toward the bow
+    assert np.abs(euler[:, 0]).max() < 60  # upright
+    assert np.std(euler[far, 0]) > 5  # tens of degrees of roll at range
+    assert np.abs(euler[~far, 0][-10:]).max() < np.abs(euler[far, 0]).max()
+
+
+def test_ship_moves_the_camera(approach):
+    s, tr = approach
+    rot, pos = camera_mount(s.ship)
+    assert np.ptp(tr.cam_pos[:, 2]) > 0.1
+    roll = np.degrees(matrix_to_euler_zyx(tr.cam_rot @ rot.T)[:, 0])
+    assert 1.0 < np.std(roll) < 6.0
+    # Looking aft: the optical axis points to −x of M.
+    assert np.all(tr.cam_rot[:, 0, 2] < -0.9)
+
+
+def test_deterministic_and_independent_streams():
+    s = load_scenario("complex")
+    a, b = make_trajectory(s, generators(11)), make_trajectory(s, generators(11))
+    assert np.array_equal(a.quat, b.quat) and np.array_equal(a.cam_pos, b.cam_pos)
+    c = make_trajectory(s, generators(12))
+    assert not np.array_equal(a.trans[0], c.trans[0])
+    head = a.head(10)
+    assert len(head) == 10 and np.array_equal(head.trans, a.trans[:10])
+
+
+def test_single_frame_protocol():
+    s = load_scenario("single_frame")
+    tr = make_trajectory(s, generators(0))
+    n = s.single_frame.poses_per_distance
+    assert len(tr) == n * len(s.single_frame.distances_m)
+    assert np.allclose(tr.trans[:, :2], 0) and tr.trans[n, 2] == s.single_frame.distances_m[1]
+    assert not tr.continuous
+    assert np.allclose(np.linalg.norm(tr.quat, axis=1), 1)
+    assert np.all(tr.quat[:, 3] >= 0)
+
+
+def test_smooth_signal_rms_and_smoothness():
+    sig = SmoothSignal(np.random.default_rng(0), 2.0, (0.1, 0.5))
+    t = np.arange(0, 2000, 0.034)
+    v = sig(t)
+    assert np.sqrt(np.mean(v**2)) == pytest.approx(2.0, rel=0.05)
+    assert np.abs(np.diff(v)).max() < 2.0 * 2 * np.pi * 0.5 * 0.034 * 2.5

@@ -1,0 +1,103 @@
+"""Frame synthesis and bag output: ground truth vs. drawn UAV, rosbags round trip, determinism, video."""
+
+import dataclasses
+import hashlib
+
+import cv2
+import numpy as np
+import pytest
+
+from uav_landing_vision.model import fixed_wing_mesh
+from uav_landing_vision.render import Renderer
+from uav_landing_vision.sim import (
+    BackgroundError,
+    VideoBackground,
+    generators,
+    iter_frames,
+    load_scenario,
+    make_trajectory,
+    read_camera,
+    read_poses,
+    scenario_camera,
+    simulate,
+)
+from uav_landing_vision.sim.synthesis import FrameSynthesizer, motion_blur_kernel
+
+MESH = fixed_wing_mesh("low")
+
+
+@pytest.fixture(scope="module")
+def setup():
+    s = load_scenario("complex")
+    s = dataclasses.replace(s, imaging=dataclasses.replace(s.imaging, noise_sigma=0.0))
+    cam = scenario_camera(s)
+    synth = FrameSynthesizer(cam, s.imaging, MESH)
+    return s, cam, synth, Renderer(cam.rectified(), MESH)
+
+
+def test_ground_truth_matches_drawn_uav_after_undistortion(setup):
+    s, cam, synth, rect = setup
+    tr = make_trajectory(s, generators(2))
+    bg = np.full((synth.render_camera.height, synth.render_camera.width, 3), 128, np.uint8)
+    m1, m2 = cam.undistortion_maps()
+    r = np.linalg.norm(tr.trans, axis=1)
+    for i in [int(np.argmin(np.abs(r - d))) for d in (5.2, 7.0, 9.0, 16.0, 60.0, 85.0)]:
+        raw, alpha = synth.frame(bg, tr.quat[i], tr.trans[i], np.array([0, -1.0, 0]), np.zeros(2), None)
+        drawn = cv2.remap(alpha, m1, m2, cv2.INTER_LINEAR)
+        sil = rect.silhouette_full(tr.quat[i], tr.trans[i])
+        if sil.sum() >= 1000:
+            iou = np.sum((drawn > 0.5) & sil) / np.sum((drawn > 0.5) | sil)
+            assert iou >= 0.9, (i, r[i], iou)
+        else:  # a few-pixel UAV: same area, drawn only where the model projects
+            assert drawn.sum() == pytest.approx(sil.sum(), rel=0.35)
+            near = cv2.dilate(sil.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+            assert drawn[~near].sum() < 0.05 * drawn.sum()
+        # the raw frame really is distorted: the undistorted silhouette differs from the raw one
+        assert np.any((alpha > 0.5) != (drawn > 0.5)) or sil.sum() < 1000
+
+
+def test_bag_roundtrip_and_determinism(tmp_path):
+    s = load_scenario("normal")
+    s = dataclasses.replace(s, approach=dataclasses.replace(s.approach, start_range_m=(12.0, 14.0)))
+    hashes = []
+    for run in ("a", "b"):
+        res = simulate(s, tmp_path / run, seed=4, frames=5, png_dir=tmp_path / f"{run}_png", progress=False, mesh=MESH)
+        assert res.frames == 5
+        hashes.append([hashlib.sha256(img.tobytes()).hexdigest() for _, img in iter_frames(tmp_path / run)])
+    assert hashes[0] == hashes[1] and len(set(hashes[0])) == 5
+    frames = list(iter_frames(tmp_path / "a"))
+    truth = read_poses(tmp_path / "a")
+    assert [st for st, _ in frames] == truth.stamps_ns.tolist()
+    assert np.all(np.diff(truth.stamps_ns) == 34_000_000)
+    assert frames[0][1].shape == (720, 1280, 3)
+    cam = read_camera(tmp_path / "a")
+    assert np.allclose(cam.K, scenario_camera(s).K) and np.allclose(cam.dist, scenario_camera(s).dist)
+    csv_truth = read_poses(tmp_path / "a_png")
+    assert np.array_equal(csv_truth.stamps_ns, truth.stamps_ns) and np.allclose(csv_truth.trans, truth.trans)
+    png = cv2.cvtColor(cv2.imread(str(tmp_path / "a_png" / f"{truth.stamps_ns[0]}.png")), cv2.COLOR_BGR2RGB)
+    assert np.array_equal(png, frames[0][1])
+    other = simulate(s, tmp_path / "c", seed=5, frames=2, progress=False, mesh=MESH)
+    assert other.frames == 2
+    assert hashlib.sha256(next(iter_frames(tmp_path / "c"))[1].tobytes()).hexdigest() != hashes[0][0]
+
+
+def test_video_background_loops_and_fills(tmp_path, setup):
+    _, cam, _, _ = setup
+    path = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10, (160, 120))
+    for k in range(3):
+        writer.write(np.full((120, 160, 3), 60 * (k + 1), np.uint8))
+    writer.release()
+    bg = VideoBackground(cam, str(path))
+    levels = [int(np.median(bg.frame(i, 0.0))) for i in range(5)]
+    assert bg.frame(0, 0.0).shape == (cam.height, cam.width, 3)
+    assert levels[3] == levels[0] and levels[4] == levels[1] and levels[0] != levels[1]
+    with pytest.raises(BackgroundError, match="not found"):
+        VideoBackground(cam, str(tmp_path / "missing.mp4"))
+
+
+def test_motion_blur_kernel():
+    assert motion_blur_kernel(np.array([0.3, 0.2])) is None
+    k = motion_blur_kernel(np.array([6.0, 0.0]))
+    assert k.sum() == pytest.approx(1.0)
+    assert k[k.shape[0] // 2].sum() > 0.9  # a horizontal line
