@@ -27,6 +27,9 @@ setup(
     entry_points={
         "console_scripts": [
             "uav-landing = uav_landing_vision.cli:main",
+            "undistort = uav_landing_vision.nodes.undistort:main",
+            "bag_player = uav_landing_vision.nodes.bag_player:main",
+            "gcs_bridge = uav_landing_vision.nodes.gcs_bridge:main",
         ],
     },
 )

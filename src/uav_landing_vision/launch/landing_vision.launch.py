@@ -1,0 +1,53 @@
+"""The landing-vision node graph on a ship PC: ``ros2 launch uav_landing_vision landing_vision.launch.py``.
+
+One process per node, parameters from the installed ``share/uav_landing_vision/config/<node>.yaml``
+(the same files ``uav-landing graph`` uses). Arguments:
+
+- ``bag:=/path/to/bag`` replays a recorded landing with ``bag_player`` and shuts the graph
+  down when the bag ends; without it the graph runs on the live camera.
+- ``config_dir:=/path`` reads the parameter files from another folder.
+"""
+
+import os
+
+from ament_index_python.packages import get_package_share_directory
+from launch import LaunchDescription
+from launch.actions import DeclareLaunchArgument, EmitEvent, OpaqueFunction, RegisterEventHandler
+from launch.event_handlers import OnProcessExit
+from launch.events import Shutdown
+from launch.substitutions import LaunchConfiguration
+from launch_ros.actions import Node
+
+PACKAGE = "uav_landing_vision"
+# The graph without the player, in start order (as uav_landing_vision.graph.GRAPH_NODES).
+NODES = ("undistort", "gcs_bridge")
+PLAYER = "bag_player"
+
+
+def _nodes(context):
+    config_dir = LaunchConfiguration("config_dir").perform(context)
+    bag = LaunchConfiguration("bag").perform(context)
+
+    def node(name, extra=()):
+        params = [os.path.join(config_dir, f"{name}.yaml"), *extra]
+        return Node(package=PACKAGE, executable=name, name=name, parameters=params, output="screen", emulate_tty=True)
+
+    actions = [node(name) for name in NODES]
+    if bag:
+        player = node(PLAYER, [{"bag": bag}])
+        actions += [
+            player,
+            RegisterEventHandler(OnProcessExit(
+                target_action=player, on_exit=[EmitEvent(event=Shutdown(reason="bag played"))],
+            )),
+        ]
+    return actions
+
+
+def generate_launch_description():
+    default_config = os.path.join(get_package_share_directory(PACKAGE), "config")
+    return LaunchDescription([
+        DeclareLaunchArgument("bag", default_value="", description="rosbag2 bag to replay (empty: live camera)"),
+        DeclareLaunchArgument("config_dir", default_value=default_config, description="folder of the <node>.yaml parameter files"),
+        OpaqueFunction(function=_nodes),
+    ])

@@ -1,0 +1,185 @@
+"""``uav-landing graph``: the node graph, one process per node, where ``ros2 launch`` is not installed.
+
+Each node of :data:`GRAPH_NODES` runs as
+``python -m uav_landing_vision.nodes.<node> --ros-args --params-file <config>/<node>.yaml``
+(the same parameter files as ``launch/landing_vision.launch.py``). Their output is streamed
+with a ``[node]`` prefix. The graph stops, every node with SIGINT (then SIGTERM, then SIGKILL
+after ``--stop-timeout``), on Ctrl-C or SIGTERM, when ``bag_player`` has played the bag, or
+when a node exits on its own; the exit code is 0 only if every node ended cleanly.
+This module imports no ROS module: the nodes do, in their own processes.
+"""
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+# The graph, in start order; a node is added by one line (its module, console script and
+# config/<node>.yaml share the name).
+GRAPH_NODES = (
+    "undistort",
+    "gcs_bridge",
+    "bag_player",  # started last: it waits for its subscribers, then plays
+)
+PLAYER = "bag_player"
+_CLEAN_EXIT = (0, -signal.SIGINT, 128 + signal.SIGINT)
+_POLL_S = 0.1
+
+
+def register(sub) -> None:
+    p = sub.add_parser("graph", help="run the node graph, one process per node (what ros2 launch would do)")
+    p.add_argument("--bag", type=Path, help="rosbag2 bag to replay with bag_player; without it, no bag_player (live camera)")
+    p.add_argument("--config", type=Path, default=Path("config"), help="folder of the <node>.yaml parameter files (default: config)")
+    p.add_argument("--nodes", help=f"comma-separated subset of {','.join(GRAPH_NODES)} (default: all)")
+    p.add_argument(
+        "--param", action="append", default=[], metavar="NODE:KEY=VALUE",
+        help="override one parameter of one node (repeatable), e.g. bag_player:mode=timed",
+    )
+    p.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID of the graph (default: the environment's)")
+    p.add_argument("--stop-timeout", type=float, default=10.0, help="seconds a node gets to stop before it is killed (default: 10)")
+    p.set_defaults(func=_run)
+
+
+def node_command(name: str, config_dir: Path, overrides=()) -> list[str]:
+    """The command line of one node process."""
+    cmd = [sys.executable, "-m", f"uav_landing_vision.nodes.{name}", "--ros-args", "--params-file", str(config_dir / f"{name}.yaml")]
+    for key, value in overrides:
+        cmd += ["-p", f"{key}:={value}"]
+    return cmd
+
+
+def _run(args) -> int:
+    try:
+        names, overrides = _plan(args)
+    except ValueError as exc:
+        print(f"uav-landing graph: {exc}", file=sys.stderr)
+        return 2
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    # The nodes import this very package, wherever it is (source tree or install space).
+    package_root = str(Path(__file__).resolve().parents[1])
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (package_root, env.get("PYTHONPATH")) if p)
+    if args.domain_id is not None:
+        env["ROS_DOMAIN_ID"] = str(args.domain_id)
+    return Graph(names, args.config, overrides, env, args.stop_timeout).run()
+
+
+def _plan(args) -> tuple[list[str], dict]:
+    """The nodes to start and the parameter overrides of each; ValueError on a bad request."""
+    names = list(GRAPH_NODES) if not args.nodes else [n.strip() for n in args.nodes.split(",") if n.strip()]
+    unknown = [n for n in names if n not in GRAPH_NODES]
+    if unknown:
+        raise ValueError(f"unknown node(s) {unknown}; known: {list(GRAPH_NODES)}")
+    if args.bag is None:
+        names = [n for n in names if n != PLAYER]
+    elif PLAYER not in names:
+        raise ValueError("--bag needs bag_player among --nodes")
+    elif not args.bag.exists():
+        raise ValueError(f"bag {args.bag} does not exist")
+    if not names:
+        raise ValueError("no node to run")
+    overrides = {n: [] for n in names}
+    if args.bag is not None:
+        overrides[PLAYER].append(("bag", str(args.bag.resolve())))
+    for item in args.param:
+        node, sep, assignment = item.partition(":")
+        key, eq, value = assignment.partition("=")
+        if not (sep and eq and key):
+            raise ValueError(f"--param {item!r}: expected NODE:KEY=VALUE")
+        if node not in overrides:
+            raise ValueError(f"--param {item!r}: node '{node}' is not in the graph")
+        overrides[node].append((key, value))
+    missing = [str(args.config / f"{n}.yaml") for n in names if not (args.config / f"{n}.yaml").is_file()]
+    if missing:
+        raise ValueError(f"missing parameter file(s): {', '.join(missing)}")
+    return names, overrides
+
+
+class Graph:
+    """The node processes of one run, their log streams and their shutdown."""
+
+    def __init__(self, names, config_dir: Path, overrides: dict, env: dict, stop_timeout: float):
+        self.names = names
+        self.config_dir = config_dir
+        self.overrides = overrides
+        self.env = env
+        self.stop_timeout = stop_timeout
+        self.procs: dict[str, subprocess.Popen] = {}
+        self._print_lock = threading.Lock()
+        self._stop_requested = threading.Event()
+
+    def run(self) -> int:
+        previous = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+        streams = []
+        try:
+            for name in self.names:
+                # Own session: a terminal's Ctrl-C reaches the launcher only, which stops the nodes in order.
+                proc = subprocess.Popen(
+                    node_command(name, self.config_dir, self.overrides[name]), env=self.env,
+                    stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, errors="replace",
+                    start_new_session=True,
+                )
+                self.procs[name] = proc
+                streams.append(threading.Thread(target=self._stream, args=(name, proc), daemon=True))
+                streams[-1].start()
+                self._say(f"started {name} (pid {proc.pid})")
+            failed = self._watch()
+        finally:
+            self._stop_all()
+            for thread in streams:
+                thread.join(timeout=5.0)
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+        for name, proc in self.procs.items():
+            if proc.returncode not in _CLEAN_EXIT and name not in failed:
+                failed.append(name)
+        if failed:
+            self._say(f"failed: {', '.join(failed)}")
+            return 1
+        self._say("all nodes stopped cleanly")
+        return 0
+
+    def _watch(self) -> list[str]:
+        """Wait for a stop request or a node's exit; the nodes that failed by then."""
+        while not self._stop_requested.is_set():
+            for name, proc in self.procs.items():
+                code = proc.poll()
+                if code is None:
+                    continue
+                if name == PLAYER and code == 0:
+                    self._say("bag played; stopping the graph")
+                    return []
+                self._say(f"{name} exited with code {code}; stopping the graph")
+                return [name]
+            self._stop_requested.wait(_POLL_S)
+        self._say("stop requested; stopping the graph")
+        return []
+
+    def _stop_all(self) -> None:
+        running = [p for p in self.procs.values() if p.poll() is None]
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
+            for proc in running:
+                proc.send_signal(sig)
+            deadline = time.monotonic() + self.stop_timeout
+            while running and time.monotonic() < deadline:
+                running = [p for p in running if p.poll() is None]
+                time.sleep(_POLL_S)
+            if not running:
+                return
+        for proc in running:
+            proc.wait()
+
+    def _on_signal(self, signum, frame) -> None:
+        self._stop_requested.set()
+
+    def _stream(self, name: str, proc: subprocess.Popen) -> None:
+        for line in proc.stdout:
+            with self._print_lock:
+                sys.stdout.write(f"[{name}] {line}")
+                sys.stdout.flush()
+
+    def _say(self, text: str) -> None:
+        with self._print_lock:
+            print(f"[graph] {text}", flush=True)
