@@ -1,0 +1,96 @@
+"""``uav-landing build-database`` and ``uav-landing eval-boosting`` (pose boosting, §4.3 / §6.4)."""
+
+import shlex
+import sys
+from pathlib import Path
+
+
+def register(sub) -> None:
+    p = sub.add_parser("build-database", help="render the pose-boosting database of a CAD model (§4.3.1)")
+    p.add_argument("--out", type=Path, required=True, help="output .npz file")
+    _model_args(p)
+    p.add_argument("--count", type=int, default=11000, help="number of orientations (default: 11000)")
+    p.add_argument("--distance", type=float, default=4.0, help="render depth Z in metres (default: 4)")
+    rng = p.add_mutually_exclusive_group()
+    rng.add_argument("--half-range-deg", type=float, nargs=3, metavar=("A", "B", "G"), default=(90.0, 90.0, 90.0),
+                     help="Euler half-ranges about camera X, Y, Z (default: 90 90 90, the front hemisphere)")
+    rng.add_argument("--full-sphere", action="store_true", help="all orientations: α, γ in ±180°, β in ±90°")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=_build)
+
+    p = sub.add_parser("eval-boosting", help="closest-hypothesis error of pose boosting (§6.4, Tables 6.2-6.3)")
+    _model_args(p)
+    p.add_argument("--database", type=Path, default=None, help="database .npz (default: the shipped one)")
+    p.add_argument("--samples", type=int, default=15000, help="random poses per distance (default: 15000)")
+    p.add_argument("--distances", type=float, nargs="+", default=[5.0, 15.0, 30.0], help="metres (default: 5 15 30)")
+    p.add_argument("--top", type=int, nargs="+", default=[10, 25, 50, 100], help="hypothesis counts (default: 10 25 50 100)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
+    p.add_argument("--placement", choices=("axis", "view"), default="axis",
+                   help="axis: X=Y=0 (default); view: random ray keeping the UAV in the image")
+    p.add_argument("--cue", choices=("border", "fast"), default="border",
+                   help="box cue in the ROI: border (default) or fast (FAST corners, the thesis)")
+    p.add_argument("--aspect-weight", type=float, default=10.0,
+                   help="weight of the aspect ratio in the distance (4.4) (default: 10; the thesis: 1)")
+    p.add_argument("--thesis-centre", action="store_true", help="use the box centre as is in (4.6)-(4.7), as the thesis")
+    p.add_argument("--json", type=Path, default=None, metavar="OUT", help="write the statistics as JSON")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=_evaluate)
+
+
+def _model_args(p) -> None:
+    p.add_argument("--camera", type=Path, default=None, help="camera_info YAML (default: config/camera.yaml)")
+    p.add_argument("--model", default="high",
+                   help="CAD file (OBJ/STL/PLY, metres, body FLU) or a built-in level: high, low (default: high)")
+
+
+def _load_camera_and_mesh(args):
+    from ..camera import load_camera_info_yaml
+    from ..model import LEVELS, fixed_wing_mesh, load_mesh
+    from ..resources import config_path
+
+    camera = load_camera_info_yaml(args.camera or config_path("camera.yaml")).rectified()
+    mesh = fixed_wing_mesh(args.model) if args.model in LEVELS else load_mesh(args.model)
+    return camera, mesh
+
+
+def _build(args) -> int:
+    import time
+
+    from .database import FULL_SPHERE_DEG, DatabaseConfig, build_database
+
+    camera, mesh = _load_camera_and_mesh(args)
+    config = DatabaseConfig(
+        count=args.count, distance=args.distance, seed=args.seed,
+        half_range_deg=FULL_SPHERE_DEG if args.full_sphere else tuple(args.half_range_deg),
+    )
+    command = "uav-landing " + shlex.join(sys.argv[1:]) if sys.argv[1:] else "uav-landing build-database"
+    start = time.perf_counter()
+    db = build_database(camera, mesh, config, command=command, progress=not args.quiet)
+    path = db.save(args.out)
+    print(f"wrote {len(db)} entries ({config.count - len(db)} degenerate dropped) to {path} "
+          f"({path.stat().st_size / 1024:.0f} KiB) in {time.perf_counter() - start:.1f} s")
+    return 0
+
+
+def _evaluate(args) -> int:
+    import json
+
+    from .evaluation import BoostingEvalConfig, evaluate_boosting, format_tables
+    from .obb import ObbConfig
+
+    if args.samples < 1 or min(args.top) < 1 or min(args.distances) <= 0:
+        raise SystemExit("--samples and --top must be positive, --distances above zero")
+    camera, mesh = _load_camera_and_mesh(args)
+    config = BoostingEvalConfig(
+        samples=args.samples, distances=tuple(args.distances), top=tuple(sorted(set(args.top))),
+        seed=args.seed, placement=args.placement, centre_offset=not args.thesis_centre,
+        obb=ObbConfig(cue=args.cue), aspect_weight=args.aspect_weight,
+    )
+    result = evaluate_boosting(camera, mesh, config, database_path=args.database, progress=not args.quiet)
+    print(format_tables(result))
+    if args.json is not None:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(result["stats"], indent=2))
+        print(f"wrote {args.json}")
+    return 0

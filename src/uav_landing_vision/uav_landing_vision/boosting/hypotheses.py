@@ -1,0 +1,106 @@
+"""Pose hypotheses from one frame (§4.3.2–4.3.3): OBB → nearest database entries → 6-DoF poses.
+
+Orientation: the quaternions of the k entries nearest to the observed (θ, R) by (4.4).
+Translation: depth by the weak-perspective area ratio (4.5), then X, Y by back-projecting the
+box centre (4.6)–(4.7). With ``centre_offset`` (default) the centre is first moved by the
+entry's own offset between its box centre and the projection of the body origin, scaled to
+the observed size and turned by the angle difference; the thesis uses the box centre as is.
+"""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..camera import CameraModel
+from .database import PoseDatabase
+from .obb import THETA_PERIOD_DEG, ObbConfig, Obb, obb_from_frame
+
+
+@dataclass(frozen=True)
+class HypothesisConfig:
+    """M hypotheses at the first frame, M − M0 afterwards; OBB cue; centre offset on/off."""
+
+    particles: int = 100
+    kept: int = 75
+    obb: ObbConfig = field(default_factory=ObbConfig)
+    centre_offset: bool = True
+
+    def __post_init__(self):
+        if self.particles < 1 or not 0 <= self.kept < self.particles:
+            raise ValueError(f"need particles M >= 1 and 0 <= kept M0 < M, got M={self.particles}, M0={self.kept}")
+
+    def count(self, first_frame: bool) -> int:
+        """M at the first frame, M − M0 afterwards."""
+        return self.particles if first_frame else self.particles - self.kept
+
+
+@dataclass(frozen=True)
+class Hypotheses:
+    """Poses ``quats (k, 4)``, ``positions (k, 3)`` (optical frame), best first, with their
+    distances (4.4), database indices and the observed box."""
+
+    obb: Obb
+    quats: np.ndarray
+    positions: np.ndarray
+    distances: np.ndarray
+    indices: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.quats)
+
+
+def weak_perspective_depth(z_ref, area_ref, area):
+    """Weak-perspective depth (4.5): Z = Z^i·sqrt(A^i / A)."""
+    return np.multiply(z_ref, np.sqrt(np.divide(area_ref, area)))
+
+
+def weak_perspective_position(uv, depth, camera: CameraModel) -> np.ndarray:
+    """X = Z(x − c_x)/f_x, Y = Z(y − c_y)/f_y (4.6)–(4.7): points ``(..., 3)`` of pixels at depth Z."""
+    return camera.backproject(uv, depth)
+
+
+def hypotheses_from_obb(database: PoseDatabase, obb: Obb, k: int, camera: CameraModel,
+                        centre_offset: bool = True) -> Hypotheses:
+    """The ``k`` poses of the entries nearest to an observed box, best first (vectorised)."""
+    if not (obb.w > 0 and obb.h > 0):
+        raise ValueError(f"observed box must have positive sides, got {obb}")
+    idx, dist = database.query(obb.theta, obb.aspect, k)
+    ref = database.obbs[idx].astype(float)
+    depth = weak_perspective_depth(database.distance, database.areas[idx].astype(float), obb.area)
+    centre = np.broadcast_to(np.array([obb.x, obb.y]), (len(idx), 2))
+    if centre_offset:
+        scale = database.distance / depth
+        offset = ref[:, 1:3] - np.array([database.camera.cx, database.camera.cy])
+        turn = np.radians(_wrap_half_period(obb.theta - ref[:, 0]))
+        c, s = np.cos(turn), np.sin(turn)
+        rotated = np.stack([c * offset[:, 0] - s * offset[:, 1], s * offset[:, 0] + c * offset[:, 1]], axis=1)
+        centre = centre - scale[:, None] * rotated
+    positions = weak_perspective_position(centre, depth, camera)
+    return Hypotheses(obb, database.quats[idx].astype(float), positions, dist, idx)
+
+
+def _wrap_half_period(d_theta):
+    return (np.asarray(d_theta) + THETA_PERIOD_DEG / 2) % THETA_PERIOD_DEG - THETA_PERIOD_DEG / 2
+
+
+class PoseHypothesisGenerator:
+    """Frame + detector ROI → pose hypotheses; the core of the ``pose_boosting`` node."""
+
+    def __init__(self, database: PoseDatabase, camera: CameraModel,
+                 config: HypothesisConfig = HypothesisConfig()):
+        if camera.is_distorted:
+            camera = camera.rectified()
+        database.check_compatible(camera)
+        self.database, self.camera, self.config = database, camera, config
+
+    def generate(self, frame: np.ndarray, roi, first_frame: bool = False, count: int | None = None) -> Hypotheses | None:
+        """Hypotheses for the rectified ``frame`` and ROI ``(x, y, w, h)``: ``count`` of them
+        (default M at the first frame, M − M0 otherwise); None if no box is found in the ROI."""
+        frame = np.asarray(frame)
+        if frame.shape[:2] != (self.camera.height, self.camera.width):
+            raise ValueError(f"frame is {frame.shape[1]}x{frame.shape[0]}, camera is {self.camera.width}x{self.camera.height}")
+        obb = obb_from_frame(frame, roi, self.config.obb)
+        if obb is None:
+            return None
+        k = self.config.count(first_frame) if count is None else count
+        return hypotheses_from_obb(self.database, obb, k, self.camera, self.config.centre_offset)

@@ -1,0 +1,148 @@
+"""OBB (4.2)–(4.3): synthetic rectangles and rotated shapes, angle convention, FAST in a frame."""
+
+import cv2
+import numpy as np
+import pytest
+
+from uav_landing_vision.boosting.obb import (
+    ObbConfig,
+    aspect_ratio,
+    obb_from_frame,
+    obb_from_mask,
+    obb_from_points,
+)
+
+
+def _rotated_rect_mask(cx, cy, w, h, theta_deg, size=(400, 300)):
+    mask = np.zeros((size[1], size[0]), np.uint8)
+    pts = cv2.boxPoints(((cx, cy), (w, h), theta_deg))
+    cv2.fillPoly(mask, [np.round(pts * 16).astype(np.int32)], 1, lineType=cv2.LINE_8, shift=4)
+    return mask
+
+
+def _angle_diff(a, b):
+    return abs((a - b + 90.0) % 180.0 - 90.0)
+
+
+def test_axis_aligned_rectangle_mask_gives_exact_box():
+    mask = np.zeros((100, 200), np.uint8)
+    mask[20:50, 30:110] = 1  # 80 wide, 30 tall
+    box = obb_from_mask(mask)
+    assert box.w == pytest.approx(80.0, abs=1e-3)
+    assert box.h == pytest.approx(30.0, abs=1e-3)
+    assert (box.x, box.y) == pytest.approx((69.5, 34.5), abs=1e-3)
+    assert _angle_diff(box.theta, 0.0) < 1e-3
+    assert box.aspect == pytest.approx(80 / 30)
+    assert box.area == pytest.approx(2400.0, rel=1e-4)
+
+
+def test_tall_rectangle_puts_long_side_first_at_90_degrees():
+    mask = np.zeros((200, 100), np.uint8)
+    mask[10:150, 40:60] = 1
+    box = obb_from_mask(mask)
+    assert (box.w, box.h) == pytest.approx((140.0, 20.0), abs=1e-3)
+    assert _angle_diff(box.theta, 90.0) < 1e-3
+    assert box.aspect > 1
+
+
+@pytest.mark.parametrize("theta", [0.0, 17.0, 45.0, 89.0, 91.0, 123.0, 179.0, 200.0, -30.0])
+def test_rotated_rectangle_points(theta):
+    pts = cv2.boxPoints(((150.0, 120.0), (120.0, 40.0), theta))
+    box = obb_from_points(pts)
+    assert 0.0 <= box.theta < 180.0
+    assert _angle_diff(box.theta, theta % 180.0) < 1e-3
+    assert (box.w, box.h) == pytest.approx((120.0, 40.0), abs=1e-3)
+    assert (box.x, box.y) == pytest.approx((150.0, 120.0), abs=1e-3)
+
+
+@pytest.mark.parametrize("theta", [10.0, 60.0, 135.0])
+def test_rotated_rectangle_mask_recovers_angle_and_size(theta):
+    box = obb_from_mask(_rotated_rect_mask(200, 150, 160, 50, theta))
+    assert _angle_diff(box.theta, theta) < 1.5
+    assert box.w == pytest.approx(160, abs=3.5)  # filled polygons include their boundary pixels
+    assert box.h == pytest.approx(50, abs=3.5)
+
+
+def test_angle_is_periodic_180():
+    pts = cv2.boxPoints(((100.0, 100.0), (80.0, 20.0), 30.0))
+    a, b = obb_from_points(pts), obb_from_points(pts[::-1])
+    c = obb_from_points(cv2.boxPoints(((100.0, 100.0), (80.0, 20.0), 210.0)))
+    d = obb_from_points(cv2.boxPoints(((100.0, 100.0), (20.0, 80.0), 120.0)))  # same box, sides swapped
+    for other in (b, c, d):
+        assert _angle_diff(a.theta, other.theta) < 1e-3
+        assert other.aspect == pytest.approx(a.aspect, rel=1e-5)
+
+
+def test_rotated_shape_box_contains_all_points_minimally():
+    rng = np.random.default_rng(3)
+    pts = rng.normal(size=(300, 2)) * [60.0, 12.0]
+    rot = np.array([[np.cos(0.7), -np.sin(0.7)], [np.sin(0.7), np.cos(0.7)]])
+    pts = pts @ rot.T + [200.0, 100.0]
+    box = obb_from_points(pts)
+    t = np.radians(box.theta)
+    axes = np.array([[np.cos(t), np.sin(t)], [-np.sin(t), np.cos(t)]])
+    local = (pts - [box.x, box.y]) @ axes.T
+    assert np.all(np.abs(local[:, 0]) <= box.w / 2 + 1e-3)
+    assert np.all(np.abs(local[:, 1]) <= box.h / 2 + 1e-3)
+    assert _angle_diff(box.theta, np.degrees(0.7)) < 5.0
+    assert box.area <= cv2.boundingRect(pts.astype(np.float32))[2] * cv2.boundingRect(pts.astype(np.float32))[3]
+
+
+def test_degenerate_inputs_give_none():
+    assert obb_from_points(np.zeros((2, 2))) is None
+    assert obb_from_points(np.array([[0, 0], [10, 0], [20, 0.0]])) is None  # collinear
+    assert obb_from_mask(np.zeros((10, 10), np.uint8)) is None
+
+
+def test_aspect_ratio_is_w_over_h():
+    np.testing.assert_allclose(aspect_ratio(np.array([4.0, 9.0]), np.array([2.0, 3.0])), [2.0, 3.0])
+
+
+@pytest.mark.parametrize("cue", ["fast", "border"])
+def test_box_of_a_drawn_rectangle_over_a_gradient(cue):
+    rows = np.linspace(60, 180, 300)[:, None, None] * np.ones((1, 400, 3))
+    frame = rows.astype(np.uint8)
+    pts = cv2.boxPoints(((220.0, 140.0), (150.0, 50.0), 25.0))
+    cv2.fillPoly(frame, [np.round(pts).astype(np.int32)], (230, 230, 230))
+    box = obb_from_frame(frame, (100, 50, 250, 200), ObbConfig(cue=cue))
+    assert _angle_diff(box.theta, 25.0) < 3.0
+    assert (box.x, box.y) == pytest.approx((220.0, 140.0), abs=3.0)
+    assert box.w == pytest.approx(150.0, abs=6.0)
+    assert box.h == pytest.approx(50.0, abs=6.0)
+
+
+@pytest.mark.parametrize("cue", ["fast", "border"])
+def test_flat_roi_has_no_box(cue):
+    frame = np.full((100, 100), 128, np.uint8)
+    assert obb_from_frame(frame, (10, 10, 50, 50), ObbConfig(cue=cue)) is None
+
+
+def test_border_cue_ignores_a_horizon_crossing_the_roi():
+    frame = np.full((200, 300, 3), (200, 220, 240), np.uint8)
+    frame[100:] = (40, 80, 110)  # sea below the horizon
+    frame[80:95, 100:200] = (90, 90, 90)  # the UAV, just above the horizon
+    box = obb_from_frame(frame, (60, 40, 200, 120))
+    assert (box.x, box.y, box.w, box.h) == pytest.approx((149.5, 87.0, 100.0, 15.0), abs=1e-3)
+
+
+@pytest.mark.parametrize(
+    "frame, roi, message",
+    [
+        (np.zeros((100, 100), np.float32), (0, 0, 10, 10), "uint8"),
+        (np.zeros((100, 100, 2), np.uint8), (0, 0, 10, 10), "shape"),
+        (np.zeros((100, 100), np.uint8), (0, 0, 0, 10), "empty"),
+        (np.zeros((100, 100), np.uint8), (200, 10, 20, 20), "outside"),
+        (np.zeros((100, 100), np.uint8), (1, 2, 3), "four numbers"),
+    ],
+)
+def test_bad_frame_or_roi_is_a_clear_error(frame, roi, message):
+    with pytest.raises(ValueError, match=message):
+        obb_from_frame(frame, roi)
+
+
+@pytest.mark.parametrize(
+    "kwargs", [{"cue": "canny"}, {"fast_threshold": 0}, {"border_threshold": 0.0}, {"min_points": 2}]
+)
+def test_obb_config_validation(kwargs):
+    with pytest.raises(ValueError):
+        ObbConfig(**kwargs)
