@@ -16,8 +16,8 @@ from ..resources import model_path
 
 TABLE_FILE = "bingham_normalisation.npz"
 _IDENTITY4 = np.eye(4)
-# R_k with (q1 ⊗ q2) = Σ_k q2_k R_k q1: the right-multiplication matrix is linear in q2.
-_RIGHT = np.stack([quat_multiply(_IDENTITY4, e).T for e in _IDENTITY4])
+# R_k with (q1 ⊗ q2) = Σ_k q2_k R_k q1 (the right-multiplication matrix is linear in q2), stacked (16, 4).
+_RIGHT = np.concatenate([quat_multiply(_IDENTITY4, e).T for e in _IDENTITY4])
 
 
 class _Table:
@@ -101,10 +101,14 @@ def _from_exponent(c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return v, np.minimum(d[..., :3] - d[..., 3:], 0.0)
 
 
+def _scaled_gram(m: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """``M diag(d) Mᵀ`` for ``m (..., 4, k)``, ``d (..., k)``."""
+    return (m * d[..., None, :]) @ np.swapaxes(m, -1, -2)
+
+
 def product(m1: np.ndarray, z1: np.ndarray, m2: np.ndarray, z2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Bingham product (C.3): eigen-decomposition of ``M1 Z1 M1ᵀ + M2 Z2 M2ᵀ``."""
-    c = np.einsum("...ik,...k,...jk->...ij", m1[..., :3], z1, m1[..., :3])
-    c = c + np.einsum("...ik,...k,...jk->...ij", m2[..., :3], z2, m2[..., :3])
+    c = _scaled_gram(m1[..., :3], z1) + _scaled_gram(m2[..., :3], z2)
     return _from_exponent(c)
 
 
@@ -123,7 +127,7 @@ def rotate(m: np.ndarray, g: np.ndarray, side: str = "right") -> np.ndarray:
 
 def covariance(m: np.ndarray, z: np.ndarray) -> np.ndarray:
     """Covariance ``E[q qᵀ] = M diag(∇F/F) Mᵀ`` (C.5)–(C.6)."""
-    return np.einsum("...ik,...k,...jk->...ij", m, moments(z), m)
+    return _scaled_gram(m, moments(z))
 
 
 def compose_covariance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -133,14 +137,23 @@ def compose_covariance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     and ``R`` linear in ``q2``, the result is ``Σ_kl b_kl R_k a R_lᵀ`` — the entries of (C.7)
     written for our component order.
     """
-    return np.einsum("...kl,kij,...jm,lnm->...in", b, _RIGHT, a, _RIGHT, optimize=True)
+    a, b = np.broadcast_arrays(a, b)
+    batch = a.shape[:-2]
+    blocks = (_RIGHT @ a @ _RIGHT.T).reshape(batch + (4, 4, 4, 4))  # [k, i, l, n] = (R_k a R_lᵀ)_in
+    blocks = np.moveaxis(blocks, (-4, -2), (-2, -1)).reshape(batch + (16, 16))  # [(i, n), (k, l)]
+    return (blocks @ b.reshape(batch + (16, 1))).reshape(batch + (4, 4))
 
 
 def scatter(q: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
     """Inertia (scatter) matrix ``S = Σ w_i q_i q_iᵀ`` (C.8) of samples ``q (..., n, 4)``."""
     if weights is None:
         weights = np.full(q.shape[:-1], 1.0 / q.shape[-2])
-    return np.einsum("...n,...ni,...nj->...ij", weights, q, q)
+    return weighted_outer(weights, q, q)
+
+
+def weighted_outer(w: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``Σ_n w_n x_n y_nᵀ`` over the second-to-last axis (a batched matrix product)."""
+    return np.swapaxes(x * w[..., None], -1, -2) @ y
 
 
 def fit(s: np.ndarray, iterations: int = 30) -> tuple[np.ndarray, np.ndarray]:
@@ -173,7 +186,7 @@ def _solve_moments(log_target: np.ndarray, iterations: int) -> np.ndarray:
         jac = np.moveaxis((vals[1:] - vals[0]) / h, 0, -1)  # (N, 3 outputs, 3 inputs)
         step = np.linalg.solve(jac + 1e-12 * np.eye(3), res[..., None])[..., 0]
         v_new = np.clip(v - np.clip(step, -2.0, 2.0), 0.0, v_max)
-        done = np.max(np.abs(v_new - v)) < 1e-10
+        done = np.max(np.abs(v_new - v)) < 1e-9
         v = v_new
         if done:
             break
@@ -230,7 +243,7 @@ def canonical_sigma_points(f: np.ndarray, m: np.ndarray, n_total: int = 14) -> t
         canon[..., 2 * i : 2 * i + 2, 3] = np.cos(alpha[..., i])[..., None]
     canon[..., 6, 3] = 1.0  # (D.4)
     weights = np.concatenate([np.repeat(w_b / 2.0, 2, axis=-1), f[..., 3:4] / n_total], axis=-1)
-    return np.einsum("...ij,...nj->...ni", m, canon), weights
+    return canon @ np.swapaxes(m, -1, -2), weights
 
 
 def tangent_covariance(q: np.ndarray, s: np.ndarray) -> np.ndarray:
@@ -240,7 +253,18 @@ def tangent_covariance(q: np.ndarray, s: np.ndarray) -> np.ndarray:
     tangent basis ``T = [q ⊗ e_x, q ⊗ e_y, q ⊗ e_z]``.
     """
     t = frame(q)[..., :3]
-    return 4.0 * np.einsum("...ik,...ij,...jl->...kl", t, s, t)
+    return 4.0 * np.swapaxes(t, -1, -2) @ s @ t
+
+
+def small_rotation_moment(sigma: np.ndarray) -> np.ndarray:
+    """``E[e eᵀ]`` of ``e = [θ/2, √(1 − |θ|²/4)]`` for a rotation vector ``θ`` of covariance ``sigma (..., 3, 3)``.
+
+    To second order: ``diag-block(Σ/4, 1 − tr Σ/4)``, the inverse of :func:`tangent_covariance`.
+    """
+    out = np.zeros(sigma.shape[:-2] + (4, 4))
+    out[..., :3, :3] = sigma / 4.0
+    out[..., 3, 3] = np.clip(1.0 - np.trace(sigma, axis1=-2, axis2=-1) / 4.0, 1e-6, 1.0)
+    return out
 
 
 def noise_frame_at(z_meas: np.ndarray, m_noise: np.ndarray) -> np.ndarray:

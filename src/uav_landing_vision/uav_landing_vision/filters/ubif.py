@@ -10,7 +10,7 @@ import numpy as np
 
 from ..geometry import omega_quat, quat_canonical, quat_conjugate, quat_multiply
 from . import bingham
-from .ukf import _take
+from .ukf import _spd, _take
 
 
 @dataclass(frozen=True)
@@ -42,13 +42,15 @@ def angular_velocity(q_prev: np.ndarray, q_now: np.ndarray, dt: float) -> np.nda
 class UBiF:
     """Prediction (Algorithm 4) and update (Algorithm 5) with Bingham noises ``Φ`` and ``Λ``."""
 
-    def __init__(self, dt: float, process_z, measurement_z):
+    def __init__(self, dt: float, process_z, measurement_z, omega_process_cov):
         if not dt > 0:
             raise ValueError(f"dt must be positive, got {dt}")
         self.dt = dt
         self.process_z = _concentration(process_z, "process_z")
         self.measurement_z = _concentration(measurement_z, "measurement_z")
         self.process_cov = bingham.covariance(np.eye(4), self.process_z)  # C_Φ (C.6), M^Φ = I
+        # δq^r = Ω(ξ^r) of (3.12): the angular-velocity disturbance integrated over Δt.
+        self.disturbance_cov = bingham.small_rotation_moment(dt**2 * _spd(omega_process_cov, 3, "omega_process_cov"))
 
     def init(self, quat: np.ndarray, omega: np.ndarray, z0) -> UBiFState:
         """Filters with mode ``quat (M, 4)``, concentrations ``z0`` and angular velocity ``omega``."""
@@ -57,10 +59,15 @@ class UBiF:
         return UBiFState(bingham.frame(quat), z, np.asarray(omega, float).copy(), quat)
 
     def predict(self, s: UBiFState) -> UBiFState:
-        """Algorithm 4: sigma points (App. D) through (3.12), composed with ``Φ`` (C.7), refit (C.9)."""
+        """Algorithm 4: sigma points (App. D) through (3.12), composed with ``Φ`` (C.7), refit (C.9).
+
+        The model (3.12) is ``q ⊗ Ω(ω) ⊗ Ω(ξ^r)``: the sigma points take ``Ω(ω)``; the random
+        disturbance ``Ω(ξ^r)`` enters, like ``Φ``, by the composition (C.7).
+        """
         pts, w = bingham.sigma_points(s.m, s.z)
         pts = quat_multiply(pts, omega_quat(s.omega, self.dt)[..., None, :])
-        cov = bingham.compose_covariance(bingham.scatter(pts, w), self.process_cov)
+        cov = bingham.compose_covariance(bingham.scatter(pts, w), self.disturbance_cov)
+        cov = bingham.compose_covariance(cov, self.process_cov)
         m, z = bingham.fit(cov)
         return UBiFState(m, z, s.omega, bingham.mode(s.m))
 

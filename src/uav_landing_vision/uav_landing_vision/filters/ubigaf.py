@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..geometry import omega_quat, quat_canonical, quat_conjugate, quat_from_rodrigues, quat_multiply, rodrigues_from_quat
+from ..geometry import omega_quat, quat_canonical, quat_conjugate, quat_multiply
 from . import bingham
 from .ubif import _concentration
 from .ukf import _spd, _take
@@ -72,13 +72,18 @@ def canonical_sigma_points(f: np.ndarray):
     return quat, eucl, weights, delta
 
 
+def tangent_coordinates(q_ref: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``2·vec(q̄_ref ⊗ x)`` with ``x`` in the hemisphere of ``q_ref``: the rotation vector for small angles."""
+    return 2.0 * quat_multiply(quat_conjugate(q_ref), _align(x, q_ref))[..., :3]
+
+
 def bingham_gauss_moments(q, w, weights):
     """``m_ω`` (E.19), ``P_ω`` (E.20), ``P_q`` (E.21), ``P_qω`` (E.22) of weighted sigma points."""
-    m_w = np.einsum("...n,...ni->...i", weights, w)
+    m_w = (weights[..., None, :] @ w)[..., 0, :]
     dw = w - m_w[..., None, :]
-    p_w = np.einsum("...n,...ni,...nj->...ij", weights, dw, dw)
-    p_q = bingham.scatter(q, weights)
-    p_qw = np.einsum("...n,...ni,...nj->...ij", weights, q, dw)
+    p_w = bingham.weighted_outer(weights, dw, dw)
+    p_q = bingham.weighted_outer(weights, q, q)
+    p_qw = bingham.weighted_outer(weights, q, dw)
     return m_w, p_w, p_q, p_qw
 
 
@@ -107,12 +112,12 @@ class UBiGaF:
         f = np.maximum(f, 1e-15)
         m = m * np.where(np.sum(m[..., :, 3] * q_ref, axis=-1) < 0, -1.0, 1.0)[..., None, None]
         canon_q, canon_w, weights, delta = canonical_sigma_points(f / f.sum(axis=-1, keepdims=True))
-        q = np.einsum("...ij,...nj->...ni", m, canon_q)  # (E.16)
+        q = canon_q @ np.swapaxes(m, -1, -2)  # (E.16)
         gain = np.swapaxes(np.linalg.solve(p_q, p_qw), -1, -2)  # P_qωᵀ P_q⁻¹
         cond = p_w - gain @ p_qw  # conditional covariance of (C.11)
         root = np.linalg.cholesky(0.5 * (cond + np.swapaxes(cond, -1, -2)) + 1e-12 * np.eye(3))
-        w = (delta[..., None] * np.einsum("...ij,nj->...ni", root, canon_w)
-             + np.einsum("...ij,...nj->...ni", gain, q) + m_w[..., None, :])  # (E.17)
+        w = (delta[..., None] * (canon_w @ np.swapaxes(root, -1, -2))
+             + q @ np.swapaxes(gain, -1, -2) + m_w[..., None, :])  # (E.17)
         return q, w, weights
 
     def predict(self, s: UBiGaFState) -> UBiGaFState:
@@ -127,42 +132,47 @@ class UBiGaF:
         return UBiGaFState(mode, m_w, p_w, p_q, p_qw, q, w, weights)
 
     def update(self, s: UBiGaFState, meas: np.ndarray) -> UBiGaFState:
-        """Algorithm 7 in error Rodrigues coordinates (A.5) about the predicted mode."""
+        """Algorithm 7, linear in the embedding R⁴ of the quaternions.
+
+        Quaternions ``x`` (taken in the hemisphere of the predicted mode ``q̄``, C.17) enter
+        through their tangent coordinates ``2·vec(q̄⁻¹ ⊗ x) = 2Tᵀx`` at ``q̄`` (see
+        :func:`bingham.tangent_covariance`), so ``z − z̄`` (A.25) is the projected R⁴
+        difference and a far outlier moves the estimate by at most a bounded amount.
+        """
         if s.sig_q is None:
             sig_q, sig_w, weights = self.sigma_points(s.q, s.m_w, s.p_w, s.p_q, s.p_qw)
         else:
             sig_q, sig_w, weights = s.sig_q, s.sig_w, s.weights
-        q_bar = quat_conjugate(s.q)
-        d = rodrigues_from_quat(quat_multiply(q_bar[..., None, :], sig_q))
-        z_mean = np.einsum("...n,...ni->...i", weights, d)  # step 1 (A.23)
+        d = tangent_coordinates(s.q[..., None, :], sig_q)
+        z_mean = (weights[..., None, :] @ d)[..., 0, :]  # step 1 (A.23)
         dz = d - z_mean[..., None, :]
-        p_zz = np.einsum("...n,...ni,...nj->...ij", weights, dz, dz)  # step 2 (A.24)
-        nu = rodrigues_from_quat(quat_multiply(q_bar, np.asarray(meas, float))) - z_mean  # step 3 (A.25)
+        p_zz = bingham.weighted_outer(weights, dz, dz)  # step 2 (A.24)
+        nu = tangent_coordinates(s.q, np.asarray(meas, float)) - z_mean  # step 3 (A.25)
         spread = bingham.compose_covariance(s.p_q, self.measurement_cov) - s.p_q
         p_nn = p_zz + bingham.tangent_covariance(s.q, spread)  # step 4: Cov(ν ⊗ Λ) (C.7)
         r_sig = np.concatenate([d, sig_w], axis=-1)
-        r_mean = np.concatenate([z_mean, np.einsum("...n,...ni->...i", weights, sig_w)], axis=-1)
+        r_mean = (weights[..., None, :] @ r_sig)[..., 0, :]
         dr = r_sig - r_mean[..., None, :]
-        p_rr = np.einsum("...n,...ni,...nj->...ij", weights, dr, dr)
-        p_rz = np.einsum("...n,...ni,...nj->...ij", weights, dr, dz)  # step 5 (A.27)
+        p_rr = bingham.weighted_outer(weights, dr, dr)
+        p_rz = bingham.weighted_outer(weights, dr, dz)  # step 5 (A.27)
         gain = np.swapaxes(np.linalg.solve(p_nn, np.swapaxes(p_rz, -1, -2)), -1, -2)  # step 6 (A.28)
         r = r_mean + np.einsum("...ij,...j->...i", gain, nu)  # step 7 (A.29)
         p_r = p_rr - gain @ p_nn @ np.swapaxes(gain, -1, -2)  # (A.30)
         p_r = 0.5 * (p_r + np.swapaxes(p_r, -1, -2))
-        q = quat_canonical(quat_multiply(s.q, quat_from_rodrigues(r[..., :3])))
+        half = r[..., :3] / 2.0
+        scale = np.maximum(1.0, np.linalg.norm(half, axis=-1, keepdims=True))
+        err = np.concatenate([half / scale, np.sqrt(np.maximum(0.0, 1.0 - np.sum((half / scale) ** 2, -1, keepdims=True)))], -1)
+        q = quat_canonical(quat_multiply(s.q, err))
         return UBiGaFState(q, r[..., 3:], p_r[..., 3:, 3:], *self.quaternion_moments(q, p_r))  # step 8
 
     @staticmethod
     def quaternion_moments(q: np.ndarray, p_r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``P_q`` (C.15) and ``P_qω`` (C.16) about mode ``q`` from the error-state covariance ``p_r``.
 
-        With ``q_true = q ⊗ e``, ``e ≈ [d/2, √(1 − |d|²/4)]``: ``E[e eᵀ] = diag-block(P_dd/4, 1 − tr/4)``
+        With ``q_true = q ⊗ e``, ``e = [d/2, √(1 − |d|²/4)]``: ``E[e eᵀ]`` by :func:`bingham.small_rotation_moment`
         and ``E[e (ω − m)ᵀ] = [P_dω/2; 0]``, mapped by the left multiplication ``L(q)``.
         """
-        p_dd = p_r[..., :3, :3]
-        e = np.zeros(p_r.shape[:-2] + (4, 4))
-        e[..., :3, :3] = p_dd / 4.0
-        e[..., 3, 3] = np.clip(1.0 - np.trace(p_dd, axis1=-2, axis2=-1) / 4.0, 1e-6, 1.0)
+        e = bingham.small_rotation_moment(p_r[..., :3, :3])
         e_w = np.zeros(p_r.shape[:-2] + (4, 3))
         e_w[..., :3, :] = p_r[..., :3, 3:] / 2.0
         left = bingham.frame(q)

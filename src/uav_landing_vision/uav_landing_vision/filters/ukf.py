@@ -49,9 +49,9 @@ def sigma_points(x: np.ndarray, p: np.ndarray, iota: float) -> np.ndarray:
 
 def unscented_moments(points: np.ndarray, wm: np.ndarray, wc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Weighted mean (A.16) and covariance (A.19)–(A.20) of sigma points ``(..., k, n)``."""
-    mean = np.einsum("k,...kn->...n", wm, points)
+    mean = wm @ points
     dev = points - mean[..., None, :]
-    return mean, np.einsum("k,...ki,...kj->...ij", wc, dev, dev)
+    return mean, np.swapaxes(dev * wc[:, None], -1, -2) @ dev
 
 
 def kalman_update(x_sig, x_mean, p_xx, z_sig, z, r, wm, wc):
@@ -59,7 +59,7 @@ def kalman_update(x_sig, x_mean, p_xx, z_sig, z, r, wm, wc):
     z_mean, p_zz = unscented_moments(z_sig, wm, wc)  # (A.23), (A.24)
     nu = z - z_mean  # (A.25)
     p_nn = p_zz + r  # (A.26)
-    p_xz = np.einsum("k,...ki,...kj->...ij", wc, x_sig - x_mean[..., None, :], z_sig - z_mean[..., None, :])  # (A.27)
+    p_xz = np.swapaxes((x_sig - x_mean[..., None, :]) * wc[:, None], -1, -2) @ (z_sig - z_mean[..., None, :])  # (A.27)
     gain = np.swapaxes(np.linalg.solve(p_nn, np.swapaxes(p_xz, -1, -2)), -1, -2)  # (A.28)
     x = x_mean + np.einsum("...ij,...j->...i", gain, nu)  # (A.29)
     p = p_xx - gain @ p_nn @ np.swapaxes(gain, -1, -2)  # (A.30)

@@ -1,0 +1,132 @@
+"""The motion filters behind one interface, chosen by configuration (§5.2.3–5.2.4, Table 6.11).
+
+``make_rotation_filter(cfg)`` returns a :class:`RotationFilter` whose kind — ``"ukf"``
+(App. A.2), ``"ubif"`` (§5.3.1) or ``"ubigaf"`` (§5.3.2) — is ``cfg.rotation_filter``; all
+take and return batched states (one filter per particle) with a ``take(idx)`` for resampling.
+The Gaussian noises of the UKF are the tangent-space equivalents (C.6) of the Bingham ones,
+so the three filters model the same noise.
+"""
+
+from dataclasses import dataclass
+from typing import Literal, Protocol
+
+import numpy as np
+
+from . import bingham
+from .ubif import UBiF, _concentration
+from .ubigaf import UBiGaF
+from .ukf import RotationUKF, TranslationUKF, UnscentedParams
+
+Vec3 = tuple[float, float, float]
+KINDS = ("ukf", "ubif", "ubigaf")
+
+
+@dataclass(frozen=True)
+class MotionFilterConfig:
+    """Motion filter parameters; thesis defaults (§6.7): Δt ≈ 0.034 s, Z^Φ = −250, Z^Λ = −800."""
+
+    rotation_filter: Literal["ukf", "ubif", "ubigaf"] = "ubif"
+    dt: float = 0.034  # s between frames
+    process_z: Vec3 = (-250.0, -250.0, -250.0)  # Bingham process noise Z^Φ = diag(·, 0), M^Φ = I
+    measurement_z: Vec3 = (-800.0, -800.0, -800.0)  # Bingham measurement noise Z^Λ, M^Λ = I
+    initial_z: Vec3 = (-800.0, -800.0, -800.0)  # spread of a new filter about its orientation
+    omega_process_std: float = 0.5  # rad/s added to ω per step (Q^ω, P^r)
+    initial_omega_std: float = 2.0  # rad/s
+    position_process_std: float = 0.05  # m per step (Q^l, position block)
+    velocity_process_std: float = 0.5  # m/s per step (Q^l, velocity block)
+    position_measurement_std: float = 0.5  # m (R^l)
+    initial_position_std: float = 0.5  # m
+    initial_velocity_std: float = 5.0  # m/s
+    ukf_alpha: float = 1.0  # (A.13)
+    ukf_beta: float = 2.0  # (A.21)
+    ukf_kappa: float = 0.0  # (A.13)
+
+    def __post_init__(self):
+        if self.rotation_filter not in KINDS:
+            raise ValueError(f"rotation_filter must be one of {KINDS}, got {self.rotation_filter!r}")
+        if not (np.isfinite(self.dt) and self.dt > 0):
+            raise ValueError(f"dt must be positive, got {self.dt}")
+        for name in ("process_z", "measurement_z", "initial_z"):
+            _concentration(getattr(self, name), name)
+        stds = ("omega_process_std", "initial_omega_std", "position_process_std", "velocity_process_std",
+                "position_measurement_std", "initial_position_std", "initial_velocity_std")
+        for name in stds:
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be positive, got {value}")
+        UnscentedParams(self.ukf_alpha, self.ukf_beta, self.ukf_kappa)
+
+    @property
+    def unscented(self) -> UnscentedParams:
+        return UnscentedParams(self.ukf_alpha, self.ukf_beta, self.ukf_kappa)
+
+
+def tangent_variance(z) -> np.ndarray:
+    """Per-axis rotation-angle variances (rad²) of a Bingham ``diag(z, 0)`` about its mode (C.6)."""
+    return 4.0 * bingham.moments(np.asarray(z, float))[:3]
+
+
+class RotationFilter(Protocol):
+    """What the tracker uses; states are batched over particles and have ``take(idx)``."""
+
+    def init(self, quat: np.ndarray, omega: np.ndarray): ...
+    def predict(self, state): ...
+    def update(self, state, quat_meas: np.ndarray): ...
+    def estimate(self, state) -> tuple[np.ndarray, np.ndarray]: ...
+    def covariance(self, state) -> np.ndarray: ...
+
+
+class _UKFRotation:
+    def __init__(self, cfg: MotionFilterConfig):
+        var_w = cfg.omega_process_std**2
+        q = np.concatenate([tangent_variance(cfg.process_z), np.full(3, var_w)])  # Q^a (A.9)
+        self.filter = RotationUKF(cfg.dt, q, tangent_variance(cfg.measurement_z), cfg.unscented)
+        self.p0 = np.concatenate([tangent_variance(cfg.initial_z), np.full(3, cfg.initial_omega_std**2)])
+        self.predict, self.update, self.estimate = self.filter.predict, self.filter.update, self.filter.estimate
+
+    def init(self, quat, omega):
+        return self.filter.init(quat, omega, self.p0)
+
+    @staticmethod
+    def covariance(state) -> np.ndarray:
+        return state.p[..., :3, :3].copy()
+
+
+class _UBiFRotation(UBiF):
+    def __init__(self, cfg: MotionFilterConfig):
+        super().__init__(cfg.dt, cfg.process_z, cfg.measurement_z, np.full(3, cfg.omega_process_std**2))
+        self.z0 = cfg.initial_z
+
+    def init(self, quat, omega):
+        return super().init(quat, omega, self.z0)
+
+
+class _UBiGaFRotation(UBiGaF):
+    def __init__(self, cfg: MotionFilterConfig):
+        super().__init__(cfg.dt, cfg.process_z, cfg.measurement_z, np.full(3, cfg.omega_process_std**2))
+        self.z0, self.omega_cov0 = cfg.initial_z, np.full(3, cfg.initial_omega_std**2)
+
+    def init(self, quat, omega):
+        return super().init(quat, omega, self.z0, self.omega_cov0)
+
+
+def make_rotation_filter(cfg: MotionFilterConfig) -> RotationFilter:
+    """The rotation filter named by ``cfg.rotation_filter``."""
+    return {"ukf": _UKFRotation, "ubif": _UBiFRotation, "ubigaf": _UBiGaFRotation}[cfg.rotation_filter](cfg)
+
+
+class TranslationFilter:
+    """The translational UKF (A.1)–(A.2) with the configured noises; ``init(pos, vel)``."""
+
+    def __init__(self, cfg: MotionFilterConfig):
+        q = np.repeat([cfg.position_process_std**2, cfg.velocity_process_std**2], 3)
+        self.filter = TranslationUKF(cfg.dt, q, np.full(3, cfg.position_measurement_std**2), cfg.unscented)
+        self.p0 = np.repeat([cfg.initial_position_std**2, cfg.initial_velocity_std**2], 3)
+        self.predict, self.update = self.filter.predict, self.filter.update
+
+    def init(self, pos, vel):
+        return self.filter.init(pos, vel, self.p0)
+
+    @staticmethod
+    def estimate(state) -> tuple[np.ndarray, np.ndarray]:
+        return state.x[..., :3].copy(), state.x[..., 3:].copy()
