@@ -102,7 +102,7 @@ class PoseDatabase:
         theta = np.mod(self.obbs[:, 0].astype(float), THETA_PERIOD_DEG)
         theta[theta >= THETA_PERIOD_DEG] = 0.0
         self._tree = cKDTree(
-            np.stack([theta, self.aspect_weight * aspect_ratio(self.obbs[:, 3], self.obbs[:, 4]).astype(float)], axis=1),
+            np.stack([theta, self.aspect_weight * aspect_ratio(*self.obbs[:, 3:5].astype(float).T)], axis=1),
             boxsize=[THETA_PERIOD_DEG, 0.0],
         )
 

@@ -1,0 +1,157 @@
+"""Pose database: (4.4) ranking and θ periodicity, sampling, file round trip and checks, self-query."""
+
+import numpy as np
+import pytest
+
+from uav_landing_vision.boosting import (
+    NOMINAL_QUAT,
+    DatabaseConfig,
+    DatabaseError,
+    PoseDatabase,
+    build_database,
+    hypotheses_from_obb,
+    obb_distance,
+    obb_from_mask,
+    sample_orientations,
+)
+from uav_landing_vision.camera import CameraModel, load_camera_info_yaml
+from uav_landing_vision.geometry import geodesic_angle, quat_conjugate, quat_multiply, quat_to_euler_zyx, quat_to_matrix
+from uav_landing_vision.model import fixed_wing_mesh
+from uav_landing_vision.resources import config_path, model_path
+
+
+@pytest.fixture(scope="module")
+def camera():
+    return load_camera_info_yaml(config_path("camera.yaml")).rectified()
+
+
+@pytest.fixture(scope="module")
+def mesh():
+    return fixed_wing_mesh("high")
+
+
+@pytest.fixture(scope="module")
+def synthetic(camera):
+    rng = np.random.default_rng(9)
+    n = 2000
+    obbs = np.column_stack([rng.uniform(0, 180, n), rng.uniform(400, 800, n), rng.uniform(200, 500, n),
+                            rng.uniform(100, 400, n), rng.uniform(30, 100, n)])
+    return PoseDatabase(sample_orientations(n, (90, 90, 90), rng), obbs, distance=4.0, camera=camera, model="m")
+
+
+def test_distance_4_4_wraps_theta_every_180_degrees():
+    assert obb_distance(179.0, 2.0, 1.0, 2.0) == pytest.approx(2.0)
+    assert obb_distance(0.0, 2.0, 180.0, 2.0) == pytest.approx(0.0)
+    assert obb_distance(10.0, 2.0, 100.0, 2.0) == pytest.approx(90.0)
+    assert obb_distance(30.0, 3.0, 34.0, 6.0) == pytest.approx(5.0)
+    assert obb_distance(30.0, 3.0, 34.0, 6.0, aspect_weight=10.0) == pytest.approx(np.hypot(4.0, 30.0))
+
+
+@pytest.mark.parametrize("weight", [1.0, 10.0])
+def test_index_ranks_exactly_as_the_distance(camera, synthetic, weight):
+    db = PoseDatabase(synthetic.quats, synthetic.obbs, distance=4.0, camera=camera, model="m", aspect_weight=weight)
+    obbs = db.obbs.astype(float)
+    aspect = obbs[:, 3] / obbs[:, 4]
+    for theta, r in [(0.3, 3.0), (179.8, 2.2), (90.0, 8.0), (-10.0, 1.5), (370.0, 4.0)]:
+        idx, dist = db.query(theta, r, 50)
+        brute = obb_distance(theta, r, obbs[:, 0], aspect, weight)
+        np.testing.assert_allclose(dist, np.sort(brute)[:50], rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(brute[idx], dist, rtol=1e-9, atol=1e-9)
+
+
+def test_query_near_0_finds_entries_near_180(camera):
+    obbs = [[179.5, 0, 0, 200, 100], [90.0, 0, 0, 200, 100], [20.0, 0, 0, 200, 100]]
+    db = PoseDatabase(np.tile(NOMINAL_QUAT, (3, 1)), obbs, distance=4.0, camera=camera, model="m")
+    idx, dist = db.query(0.5, 2.0, 3)
+    assert idx.tolist() == [0, 2, 1]
+    assert dist[0] == pytest.approx(1.0, abs=1e-4)
+
+
+def test_query_clips_k_and_rejects_bad_input(synthetic):
+    idx, _ = synthetic.query(10.0, 2.0, 10**6)
+    assert len(idx) == len(synthetic) and len(set(idx.tolist())) == len(synthetic)
+    with pytest.raises(ValueError):
+        synthetic.query(10.0, 2.0, 0)
+    with pytest.raises(ValueError):
+        synthetic.query(np.nan, 2.0, 5)
+
+
+def test_orientations_are_uniform_euler_inside_the_interval():
+    rng = np.random.default_rng(1)
+    q = sample_orientations(4000, (90, 30, 60), rng)
+    euler = np.degrees(quat_to_euler_zyx(quat_multiply(q, quat_conjugate(NOMINAL_QUAT))))
+    assert np.all(np.abs(euler) <= np.array([90, 30, 60]) + 1e-6)
+    assert np.all(np.abs(euler).max(axis=0) > np.array([85, 28, 57]))
+    assert np.all(q[:, 3] >= 0)
+    # Nominal attitude: nose towards the camera, left wing to image right, up to image up.
+    np.testing.assert_allclose(quat_to_matrix(NOMINAL_QUAT), [[0, 1, 0], [0, 0, -1], [-1, 0, 0]], atol=1e-12)
+
+
+def test_small_built_database_round_trips(tmp_path, camera, mesh):
+    db = build_database(camera, mesh, DatabaseConfig(count=30, seed=3), command="test", progress=False)
+    assert len(db) == 30
+    assert np.all(db.obbs[:, 3] >= db.obbs[:, 4])
+    path = db.save(tmp_path / "db.npz")
+    back = PoseDatabase.load(path, camera=camera, mesh=mesh)
+    np.testing.assert_array_equal(back.quats, db.quats)
+    np.testing.assert_array_equal(back.obbs, db.obbs)
+    assert (back.distance, back.model, back.command, back.half_range_deg) == (4.0, db.model, "test", (90.0, 90.0, 90.0))
+    np.testing.assert_array_equal(back.camera.K, camera.K)
+    assert back.quats.dtype == np.float32
+    # Each entry is the box of its own silhouette at (0, 0, 4).
+    from uav_landing_vision.render import Renderer
+
+    box = obb_from_mask(Renderer(camera, mesh).silhouette_full(db.quats[7], [0.0, 0.0, 4.0]))
+    np.testing.assert_allclose(box, db.obbs[7], rtol=1e-5, atol=1e-3)
+
+
+def test_missing_corrupt_or_mismatched_files_are_clear_errors(tmp_path, camera, synthetic):
+    with pytest.raises(DatabaseError, match="not found"):
+        PoseDatabase.load(tmp_path / "none.npz")
+    bad = tmp_path / "bad.npz"
+    bad.write_bytes(b"not a zip file")
+    with pytest.raises(DatabaseError, match="corrupt"):
+        PoseDatabase.load(bad)
+    path = synthetic.save(tmp_path / "ok.npz")
+    other = CameraModel(camera.width, camera.height, [[900.0, 0, 640], [0, 900.0, 360], [0, 0, 1]])
+    with pytest.raises(DatabaseError, match="camera"):
+        PoseDatabase.load(path, camera=other)
+    with pytest.raises(DatabaseError, match="model"):
+        PoseDatabase.load(path, camera=camera, mesh=fixed_wing_mesh("low"))
+    z = dict(np.load(path))
+    z.pop("obbs")
+    np.savez(tmp_path / "partial.npz", **z)
+    with pytest.raises(DatabaseError, match="corrupt"):
+        PoseDatabase.load(tmp_path / "partial.npz")
+
+
+@pytest.fixture(scope="module")
+def shipped(camera, mesh):
+    return PoseDatabase.load(model_path("pose_database.npz"), camera=camera, mesh=mesh)
+
+
+def test_shipped_database_is_the_default_one(shipped):
+    assert len(shipped) == 11000
+    assert shipped.distance == 4.0 and shipped.half_range_deg == (90.0, 90.0, 90.0)
+    assert "build-database" in shipped.command
+
+
+def test_rendered_entry_finds_itself_in_the_top_10(camera, mesh, shipped):
+    from uav_landing_vision.render import Renderer
+
+    renderer = Renderer(camera, mesh)
+    t = np.array([0.0, 0.0, 4.0])
+    for i in np.random.default_rng(0).choice(len(shipped), 20, replace=False):
+        q = shipped.quats[i].astype(float)
+        box = obb_from_mask(renderer.silhouette_full(q, t))
+        hyp = hypotheses_from_obb(shipped, box, 10, camera)
+        err = np.degrees(geodesic_angle(np.broadcast_to(q, hyp.quats.shape), hyp.quats))
+        j = int(np.argmin(err))
+        assert err[j] < 1e-3 or _is_twin(renderer, q, hyp.quats[j], t)
+        np.testing.assert_allclose(hyp.positions[j], t, atol=1e-3)
+
+
+def _is_twin(renderer, q, other, t) -> bool:
+    """Another pose with (nearly) the same silhouette."""
+    a, b = renderer.silhouette_full(q, t), renderer.silhouette_full(other, t)
+    return np.sum(a ^ b) < 0.02 * np.sum(a)

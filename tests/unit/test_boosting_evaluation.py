@@ -1,0 +1,81 @@
+"""eval-boosting pieces: table statistics, closest-hypothesis selection, JSON schema of a tiny run."""
+
+import json
+
+import numpy as np
+import pytest
+
+from uav_landing_vision.boosting.evaluation import (
+    STAT_KEYS,
+    BoostingEvalConfig,
+    closest_errors,
+    error_statistics,
+    evaluate_boosting,
+    format_tables,
+    normal_background,
+    sample_positions,
+    silhouette_roi,
+)
+from uav_landing_vision.camera import load_camera_info_yaml
+from uav_landing_vision.cli import main
+from uav_landing_vision.geometry import euler_zyx_to_quat
+from uav_landing_vision.model import fixed_wing_mesh
+from uav_landing_vision.resources import config_path
+
+
+@pytest.fixture(scope="module")
+def camera():
+    return load_camera_info_yaml(config_path("camera.yaml")).rectified()
+
+
+def test_statistics_rows():
+    e = np.array([-2.0, -1.0, 0.0, 1.0, 2.0, 100.0])
+    s = error_statistics(e)
+    assert list(s) == list(STAT_KEYS)
+    assert s["median"] == pytest.approx(0.5)
+    assert s["mae"] == pytest.approx(106 / 6)
+    assert s["rmse"] == pytest.approx(np.sqrt(np.mean(e**2)))
+    assert s["sd"] == pytest.approx(np.std(e))
+    assert s["outlier_pct"] == pytest.approx(100 / 6)
+
+
+def test_closest_hypothesis_is_chosen_by_rotation_among_the_first_k():
+    q_true = euler_zyx_to_quat(np.zeros(3))
+    quats = euler_zyx_to_quat(np.radians([[0, 0, 40], [0, 0, 20], [0, 0, 5], [0, 0, 1]]))
+    positions = np.array([[0, 0, 1.0], [0, 0, 2.0], [0, 0, 3.0], [0, 0, 4.0]])
+    t_err, r_err = closest_errors(q_true, np.zeros(3), quats, positions, (1, 2, 4))
+    np.testing.assert_allclose(t_err[:, 2], [-1.0, -2.0, -4.0])
+    np.testing.assert_allclose(np.degrees(r_err[:, 2]), [-40.0, -20.0, -1.0], atol=1e-9)
+
+
+def test_positions_are_at_the_distance_and_in_view(camera):
+    p = sample_positions(camera, 5.0, 0.9, 500, np.random.default_rng(0))
+    np.testing.assert_allclose(np.linalg.norm(p, axis=1), 5.0)
+    uv = camera.project_pinhole(p)
+    r = camera.fx * 0.9 / 5.0
+    assert np.all((uv >= r - 1e-6) & (uv <= np.array([camera.width, camera.height]) - 1 - r + 1e-6))
+
+
+def test_background_and_roi(camera):
+    bg = normal_background(camera)
+    assert bg.shape == (camera.height, camera.width, 3) and bg.dtype == np.uint8
+    alpha = np.zeros((100, 200), np.float32)
+    alpha[40:60, 50:150] = 1.0
+    assert silhouette_roi(alpha) == (38, 36, 124, 28)
+    assert silhouette_roi(np.zeros((10, 10))) is None
+
+
+def test_tiny_run_has_the_json_schema(tmp_path, camera):
+    cfg = BoostingEvalConfig(samples=4, distances=(5.0, 15.0), top=(1, 3), seed=2)
+    result = evaluate_boosting(camera, fixed_wing_mesh("high"), cfg, progress=False)
+    stats = result["stats"]
+    assert list(stats) == ["5", "15"] and list(stats["5"]) == ["1", "3"]
+    cell = stats["15"]["3"]
+    assert list(cell["translation_m"]) == ["x", "y", "z"]
+    assert list(cell["rotation_deg"]) == ["alpha", "beta", "gamma"]
+    assert list(cell["rotation_deg"]["beta"]) == list(STAT_KEYS)
+    assert "Rotation error (degrees) at 15 m" in format_tables(result)
+    out = tmp_path / "e.json"
+    assert main(["eval-boosting", "--samples", "2", "--distances", "5", "--top", "1", "2", "--quiet",
+                 "--json", str(out)]) == 0
+    assert list(json.loads(out.read_text())["5"]) == ["1", "2"]

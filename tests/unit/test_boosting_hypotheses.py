@@ -1,0 +1,114 @@
+"""Weak-perspective relations (4.5)–(4.7) against exact pinhole projection; hypothesis generation."""
+
+import numpy as np
+import pytest
+
+from uav_landing_vision.boosting import (
+    HypothesisConfig,
+    Obb,
+    PoseDatabase,
+    PoseHypothesisGenerator,
+    hypotheses_from_obb,
+    weak_perspective_depth,
+    weak_perspective_position,
+)
+from uav_landing_vision.boosting.obb import obb_from_points
+from uav_landing_vision.camera import CameraModel, load_camera_info_yaml
+from uav_landing_vision.resources import config_path
+
+
+@pytest.fixture(scope="module")
+def camera():
+    return load_camera_info_yaml(config_path("camera.yaml")).rectified()
+
+
+def _square_box(camera, centre, side, depth):
+    """Exact pinhole box of a fronto-parallel square (side metres) centred at ``centre`` (3,)."""
+    h = side / 2
+    corners = np.array(centre) + np.array([[-h, -h, 0], [h, -h, 0], [h, h, 0], [-h, h, 0.0]]) * [1, 0.5, 1]
+    return obb_from_points(camera.project_pinhole(corners))
+
+
+@pytest.mark.parametrize("depth", [2.0, 5.0, 15.0, 30.0, 80.0])
+def test_depth_4_5_is_exact_for_a_fronto_parallel_plate(camera, depth):
+    ref = _square_box(camera, [0.0, 0.0, 4.0], 1.5, 4.0)
+    obs = _square_box(camera, [0.7, -0.3, depth], 1.5, depth)
+    assert weak_perspective_depth(4.0, ref.area, obs.area) == pytest.approx(depth, rel=1e-4)
+
+
+def test_position_4_6_4_7_inverts_the_pinhole_projection(camera):
+    rng = np.random.default_rng(2)
+    points = rng.uniform([-5, -3, 4], [5, 3, 60], size=(50, 3))
+    uv = camera.project_pinhole(points)
+    np.testing.assert_allclose(weak_perspective_position(uv, points[:, 2], camera), points, atol=1e-9)
+    x, y, z = weak_perspective_position(np.array([900.0, 100.0]), 10.0, camera)
+    assert (x, y, z) == pytest.approx((10 * (900 - camera.cx) / camera.fx, 10 * (100 - camera.cy) / camera.fy, 10))
+
+
+def _database(camera, obbs, quats=None):
+    obbs = np.asarray(obbs, dtype=float)
+    if quats is None:
+        quats = np.tile([0.0, 0.0, 0.0, 1.0], (len(obbs), 1))
+    return PoseDatabase(quats, obbs, distance=4.0, camera=camera, model="test")
+
+
+@pytest.mark.parametrize("centre_offset", [True, False])
+def test_hypothesis_translation_of_a_scaled_entry(camera, centre_offset):
+    # The entry's box centre is 40 px right of and 10 px below the projected body origin.
+    entry = [30.0, camera.cx + 40.0, camera.cy + 10.0, 200.0, 50.0]
+    db = _database(camera, [entry, [120.0, camera.cx, camera.cy, 100.0, 90.0]])
+    origin = np.array([1.5, -0.8, 8.0])  # at twice the depth: half the size, half the offset
+    u, v = camera.project_pinhole(origin)
+    obs = Obb(30.0, u + 20.0, v + 5.0, 100.0, 25.0)
+    hyp = hypotheses_from_obb(db, obs, 1, camera, centre_offset=centre_offset)
+    assert hyp.indices.tolist() == [0]
+    assert hyp.positions[0, 2] == pytest.approx(8.0)
+    expected = origin if centre_offset else weak_perspective_position(np.array([obs.x, obs.y]), 8.0, camera)
+    np.testing.assert_allclose(hyp.positions[0], expected, atol=1e-6)
+
+
+def test_centre_offset_turns_with_the_box(camera):
+    db = _database(camera, [[0.0, camera.cx + 40.0, camera.cy, 200.0, 50.0]])
+    origin = np.array([0.0, 0.0, 4.0])
+    turn = np.radians(30.0)  # the box turned by 30° (x towards y): so is the offset
+    obs = Obb(30.0, camera.cx + 40.0 * np.cos(turn), camera.cy + 40.0 * np.sin(turn), 200.0, 50.0)
+    hyp = hypotheses_from_obb(db, obs, 1, camera)
+    np.testing.assert_allclose(hyp.positions[0], origin, atol=1e-6)  # float32 entries
+
+
+def test_hypotheses_are_sorted_and_carry_their_entries(camera):
+    rng = np.random.default_rng(4)
+    n = 300
+    obbs = np.column_stack([rng.uniform(0, 180, n), np.full(n, camera.cx), np.full(n, camera.cy),
+                            rng.uniform(60, 300, n), rng.uniform(20, 60, n)])
+    quats = rng.normal(size=(n, 4))
+    quats /= np.linalg.norm(quats, axis=1, keepdims=True)
+    db = _database(camera, obbs, quats)
+    hyp = hypotheses_from_obb(db, Obb(45.0, 500.0, 300.0, 150.0, 40.0), 25, camera)
+    assert len(hyp) == 25
+    assert np.all(np.diff(hyp.distances) >= 0)
+    np.testing.assert_allclose(hyp.quats, db.quats[hyp.indices].astype(float))
+    assert np.all(hyp.positions[:, 2] > 0)
+
+
+def test_generator_counts_and_errors(camera):
+    db = _database(camera, [[float(a), camera.cx, camera.cy, 300.0, 60.0] for a in range(0, 180, 2)])
+    gen = PoseHypothesisGenerator(db, camera, HypothesisConfig(particles=40, kept=30))
+    frame = np.full((camera.height, camera.width, 3), 200, np.uint8)
+    frame[300:340, 500:700] = 60
+    roi = (450, 250, 300, 140)
+    assert len(gen.generate(frame, roi, first_frame=True)) == 40
+    assert len(gen.generate(frame, roi)) == 10
+    assert len(gen.generate(frame, roi, count=7)) == 7
+    assert gen.generate(np.full_like(frame, 200), roi) is None
+    with pytest.raises(ValueError, match="camera is"):
+        gen.generate(frame[:100], roi)
+    other = CameraModel(camera.width, camera.height, np.diag([900.0, 900.0, 1.0]) + [[0, 0, 640], [0, 0, 360], [0, 0, 0]])
+    with pytest.raises(ValueError, match="rebuild"):
+        PoseHypothesisGenerator(db, other)
+
+
+@pytest.mark.parametrize("particles, kept", [(0, 0), (10, 10), (10, -1)])
+def test_hypothesis_config_validation(particles, kept):
+    with pytest.raises(ValueError):
+        HypothesisConfig(particles=particles, kept=kept)
