@@ -15,6 +15,7 @@ _COMMAND_MODULES = [
     "uav_landing_vision.boosting.commands",
     "uav_landing_vision.sim.commands",
     "uav_landing_vision.evaluation.commands",
+    "uav_landing_vision.tracking.commands",
 ]
 
 
