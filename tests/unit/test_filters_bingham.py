@@ -1,0 +1,188 @@
+"""Bingham toolkit (App. C.1, D) against pyrecest and an independent numerical integration."""
+
+import numpy as np
+import pytest
+from pyrecest.distributions import BinghamDistribution
+from pyrecest.filters import BinghamFilter
+from scipy.special import ive
+from scipy.spatial.transform import Rotation
+
+from uav_landing_vision.filters import bingham, bingham_table
+from uav_landing_vision.geometry import quat_multiply
+
+PY = [3, 0, 1, 2]  # our [x, y, z, w] → pyrecest's scalar-first [w, x, y, z]
+
+
+def _graded_nodes():
+    """Gauss–Legendre nodes on [0, π/2], graded towards both ends (the integrand's peaks)."""
+    inner = 10.0 ** np.arange(-6, 0)
+    breaks = np.unique(np.r_[0.0, inner, np.pi / 4, np.pi / 2 - inner[::-1], np.pi / 2])
+    x, w = np.polynomial.legendre.leggauss(24)
+    lo, hi = breaks[:-1, None], breaks[1:, None]
+    return (lo + (hi - lo) * (x + 1) / 2).ravel(), ((hi - lo) * w / 2).ravel()
+
+
+def direct_integration(z):
+    """F and ∂F/∂z_i by integrating over the tangent ball of the upper hemisphere.
+
+    ``q = (ρn, √(1−ρ²))``, ``dS = ρ² dρ dn / √(1−ρ²)``; the radial integrals are closed-form
+    (``ρ = sin θ``): ``∫ e^{−aρ²} sin²θ dθ`` and ``∫ e^{−aρ²} sin⁴θ dθ`` in scaled Bessel
+    functions; the direction ``n ∈ S²`` is integrated numerically over one octant.
+    """
+    t, wt = _graded_nodes()
+    th, ph = np.meshgrid(t, t, indexing="ij")
+    wgt = np.outer(wt, wt) * np.sin(th)
+    n = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], -1)
+    a = n**2 @ (-np.asarray(z, float))
+    b = a / 2
+    r1 = np.pi / 4 * (ive(0, b) - ive(1, b))
+    r2 = np.pi / 8 * (1.5 * ive(0, b) - 2 * ive(1, b) + 0.5 * ive(2, b))
+    f = 16 * np.sum(wgt * r1)  # 2 hemispheres × 8 octants
+    df = np.array([16 * np.sum(wgt * n[..., i] ** 2 * r2) for i in range(3)])
+    return f, np.r_[df, f - df.sum()]
+
+
+def to_pyrecest(m, z):
+    zz = np.r_[z, 0.0]
+    order = np.argsort(zz)
+    return BinghamDistribution(zz[order], m[PY][:, order])
+
+
+def random_bingham(rng, low=1.0, high=300.0):
+    m = np.linalg.qr(rng.standard_normal((4, 4)))[0]
+    return m, -rng.uniform(low, high, 3)
+
+
+CORNERS = [(0.0, 0.0, 0.0), (-1e5, -1e5, -1e5), (-1e5, -0.5, -1e5), (-3e4, -20.0, -7000.0),
+           (-500.0, -2.0, -8e4), (-1e5, 0.0, 0.0), (-0.3, -0.7, -1.1)]
+
+
+@pytest.mark.parametrize("z", CORNERS + [tuple(-np.expm1(v)) for v in np.random.default_rng(3).uniform(0, 11.5, (8, 3))])
+def test_normaliser_and_gradient_match_direct_integration_over_the_whole_table(z):
+    f, df = direct_integration(z)
+    assert bingham.normaliser(np.array(z)) == pytest.approx(f, rel=1e-3)
+    np.testing.assert_allclose(bingham.normaliser_gradient(np.array(z)), df, rtol=1e-3)
+
+
+def test_normaliser_and_gradient_match_pyrecest():
+    rng = np.random.default_rng(0)
+    z = np.concatenate([-rng.uniform(0, 600, (30, 3)), -np.exp(rng.uniform(-3, np.log(600), (30, 3)))])
+    for zi in z:
+        ref = to_pyrecest(np.eye(4), zi)
+        order = np.argsort(np.r_[zi, 0.0])
+        assert bingham.normaliser(zi) == pytest.approx(float(ref.F), rel=1e-3)
+        np.testing.assert_allclose(bingham.normaliser_gradient(zi)[order], np.asarray(ref.dF), rtol=1e-3)
+
+
+def test_density_integrates_to_one_and_matches_pyrecest():
+    rng = np.random.default_rng(1)
+    m, z = random_bingham(rng)
+    q = rng.standard_normal((50, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    np.testing.assert_allclose(bingham.density(q, m, z), to_pyrecest(m, z).pdf(q[:, PY]), rtol=1e-3)
+
+
+def test_product_and_mode_match_pyrecest():
+    rng = np.random.default_rng(2)
+    for _ in range(10):
+        (m1, z1), (m2, z2) = random_bingham(rng), random_bingham(rng)
+        m, z = bingham.product(m1, z1, m2, z2)
+        ref = to_pyrecest(m1, z1).multiply(to_pyrecest(m2, z2))
+        np.testing.assert_allclose(np.sort(z), np.asarray(ref.Z)[:3], rtol=1e-9)
+        assert abs(bingham.mode(m) @ np.asarray(ref.mode())[np.argsort(PY)]) == pytest.approx(1.0, abs=1e-9)
+
+
+def test_composition_matches_pyrecest_and_monte_carlo():
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        (m1, z1), (m2, z2) = random_bingham(rng, 1, 50), random_bingham(rng, 1, 50)
+        c = bingham.compose_covariance(bingham.covariance(m1, z1), bingham.covariance(m2, z2))
+        ref = to_pyrecest(m1, z1).compose(to_pyrecest(m2, z2)).moment()  # moment of its refit
+        np.testing.assert_allclose(c[PY][:, PY], np.asarray(ref), atol=2e-4)
+    q1, q2 = bingham.sample(m1, z1, 40000, rng), bingham.sample(m2, z2, 40000, rng)
+    np.testing.assert_allclose(bingham.scatter(quat_multiply(q1, q2)), c, atol=0.01)
+
+
+def test_covariance_matches_pyrecest_and_sampling_reproduces_it():
+    rng = np.random.default_rng(4)
+    m, z = random_bingham(rng, 1, 40)
+    s = bingham.covariance(m, z)
+    np.testing.assert_allclose(s[PY][:, PY], np.asarray(to_pyrecest(m, z).moment()), atol=1e-5)
+    q = bingham.sample(m, z, 20000, rng)
+    assert np.allclose(np.linalg.norm(q, axis=1), 1.0)
+    sq = q[:, :, None] * q[:, None, :]
+    se = sq.std(axis=0) / np.sqrt(len(q))  # Monte-Carlo standard error of each entry
+    assert np.all(np.abs(sq.mean(axis=0) - s) < 5 * se + 1e-4)
+
+
+def test_fit_inverts_the_covariance_and_matches_pyrecest():
+    rng = np.random.default_rng(5)
+    m = np.linalg.qr(rng.standard_normal((20, 4, 4)))[0]
+    z = -np.exp(rng.uniform(-2, np.log(9e4), (20, 3)))
+    m_fit, z_fit = bingham.fit(bingham.covariance(m, z))
+    np.testing.assert_allclose(np.sort(z_fit, axis=1), np.sort(z, axis=1), rtol=1e-6)
+    np.testing.assert_allclose(bingham.covariance(m_fit, z_fit), bingham.covariance(m, z), atol=1e-10)
+    m1, z1 = random_bingham(rng, 1, 200)
+    ref = BinghamDistribution.fit_to_moment(bingham.covariance(m1, z1)[PY][:, PY])
+    np.testing.assert_allclose(np.sort(bingham.fit(bingham.covariance(m1, z1))[1]), np.asarray(ref.Z)[:3], rtol=1e-4)
+
+
+def test_rotation_moves_the_density_with_the_samples():
+    rng = np.random.default_rng(6)
+    m, z = random_bingham(rng)
+    g = Rotation.random(random_state=7).as_quat()
+    q = bingham.sample(m, z, 100, rng)
+    for side, r in (("right", quat_multiply(q, g)), ("left", quat_multiply(g, q))):
+        np.testing.assert_allclose(bingham.density(r, bingham.rotate(m, g, side), z), bingham.density(q, m, z), rtol=1e-9)
+    with pytest.raises(ValueError):
+        bingham.rotate(m, g, "middle")
+
+
+def test_sigma_points_reproduce_the_covariance():
+    rng = np.random.default_rng(8)
+    m = np.linalg.qr(rng.standard_normal((6, 4, 4)))[0]
+    z = -rng.uniform(1, 3000, (6, 3))
+    pts, w = bingham.sigma_points(m, z)
+    assert pts.shape == (6, 7, 4) and np.allclose(w.sum(axis=1), 1.0) and np.all(w > 0)
+    np.testing.assert_allclose(bingham.scatter(pts, w), bingham.covariance(m, z), atol=1e-12)
+    np.testing.assert_allclose(pts[:, 6], m[:, :, 3])  # the central point is the mode (D.4)
+
+
+def test_measurement_noise_rotation_matches_pyrecest_update():
+    rng = np.random.default_rng(9)
+    m_state, z_state = random_bingham(rng, 5, 100)
+    m_noise, z_noise = random_bingham(rng, 5, 100)
+    meas = Rotation.random(random_state=10).as_quat()
+    m, z = bingham.product(bingham.noise_frame_at(meas, m_noise), z_noise, m_state, z_state)
+    filt = BinghamFilter()
+    filt.filter_state = to_pyrecest(m_state, z_state)
+    filt.update_identity(to_pyrecest(m_noise, z_noise), meas[PY])
+    np.testing.assert_allclose(np.sort(z), np.asarray(filt.filter_state.Z)[:3], rtol=1e-9)
+    assert abs(bingham.mode(m) @ np.asarray(filt.get_point_estimate())[np.argsort(PY)]) == pytest.approx(1.0)
+
+
+def test_tangent_covariance_inverts_small_rotation_moment():
+    rng = np.random.default_rng(11)
+    a = rng.standard_normal((3, 3)) * 0.05
+    sigma = a @ a.T
+    q = Rotation.random(random_state=12).as_quat()
+    s = bingham.frame(q) @ bingham.small_rotation_moment(sigma) @ bingham.frame(q).T
+    np.testing.assert_allclose(bingham.tangent_covariance(q, s), sigma, atol=1e-12)
+
+
+def test_lookups_outside_the_table_are_errors():
+    with pytest.raises(ValueError):
+        bingham.normaliser(np.array([-1.0, -2.0, 0.5]))
+    with pytest.raises(ValueError):
+        bingham.moments(np.array([-2e5, -1.0, -1.0]))
+
+
+def test_table_command_builds_a_table_that_matches_the_quadrature(tmp_path):
+    out = tmp_path / "table.npz"
+    assert bingham_table.main([str(out), "--grid-size", "8", "--z-max", "50"]) == 0
+    with np.load(out) as t:
+        v, log_f = t["v"], t["log_f"]
+    i = bingham_table.PAD + np.array([1, 4, 7])
+    f, _ = bingham_table.normaliser_and_moments(-np.expm1(v[i])[None])
+    assert log_f[i[0], i[1], i[2]] == pytest.approx(np.log(f[0]), rel=1e-6)
+    assert log_f[i[2], i[0], i[1]] == pytest.approx(np.log(f[0]), rel=1e-6)

@@ -1,0 +1,78 @@
+"""Unscented Kalman filters of Appendix A against filterpy and scipy."""
+
+import numpy as np
+import pytest
+from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
+from scipy.spatial.transform import Rotation
+
+from uav_landing_vision.filters.ukf import RotationUKF, TranslationUKF, UnscentedParams
+
+DT = 0.034
+
+
+@pytest.mark.parametrize("params", [UnscentedParams(), UnscentedParams(alpha=0.5, beta=2.0, kappa=1.0)])
+def test_translation_ukf_equals_filterpy(params):
+    rng = np.random.default_rng(0)
+    m = 4
+    q = np.diag([0.01, 0.02, 0.03, 0.3, 0.2, 0.1])
+    r = np.diag([0.5, 0.4, 0.3])
+    p0 = np.diag([1.0, 1.0, 2.0, 4.0, 4.0, 4.0])
+    ukf = TranslationUKF(DT, q, r, params)
+    pos, vel = rng.normal(0, 10, (m, 3)), rng.normal(0, 2, (m, 3))
+    state = ukf.init(pos, vel, p0)
+    refs = []
+    for i in range(m):
+        pts = MerweScaledSigmaPoints(6, alpha=params.alpha, beta=params.beta, kappa=params.kappa)
+        ref = UnscentedKalmanFilter(6, 3, DT, hx=lambda x: x[:3], fx=lambda x, dt: ukf.f @ x, points=pts)
+        ref.x, ref.P = np.r_[pos[i], vel[i]], p0.copy()
+        # (A.12) puts Q into the sigma points before the model, filterpy adds it after: F Q Fᵀ.
+        ref.Q, ref.R = ukf.f @ q @ ukf.f.T, r
+        refs.append(ref)
+    for _ in range(20):
+        z = rng.normal(0, 10, (m, 3))
+        state = ukf.update(ukf.predict(state), z)
+        for i, ref in enumerate(refs):
+            ref.predict()
+            ref.update(z[i])
+            np.testing.assert_allclose(state.x[i], ref.x, atol=1e-9, rtol=0)
+            np.testing.assert_allclose(state.p[i], ref.P, atol=1e-9, rtol=0)
+
+
+def test_rotation_ukf_prediction_follows_the_angular_velocity():
+    rng = np.random.default_rng(1)
+    q0 = Rotation.random(5, random_state=2)
+    omega = rng.normal(0, 3, (5, 3))
+    ukf = RotationUKF(DT, np.full(6, 1e-12), np.full(3, 1e-2))
+    state = ukf.init(q0.as_quat(), omega, np.full(6, 1e-12))
+    for _ in range(10):
+        state = ukf.predict(state)
+    q, w = ukf.estimate(state)
+    expected = q0 * Rotation.from_rotvec(omega * DT * 10)  # body-frame rate (3.12)
+    assert np.all((Rotation.from_quat(q) * expected.inv()).magnitude() < 1e-7)
+    np.testing.assert_allclose(w, omega, atol=1e-9)
+
+
+def test_rotation_ukf_update_moves_towards_the_measurement_and_resets():
+    q0 = Rotation.from_euler("z", 0.0).as_quat()
+    meas = Rotation.from_euler("z", 0.2).as_quat()
+    p = np.r_[np.full(3, 0.01), np.full(3, 1e-6)]
+    ukf = RotationUKF(DT, np.full(6, 1e-12), np.full(3, 0.01))
+    state = ukf.update(ukf.init(q0[None], np.zeros((1, 3)), p), meas[None])
+    angle = Rotation.from_quat(state.q[0]).as_rotvec()
+    # Equal prior and measurement variances: about half-way (Rodrigues ≈ angle for small angles).
+    assert angle[2] == pytest.approx(0.1, abs=2e-3) and np.allclose(angle[:2], 0.0, atol=1e-12)
+    assert np.all(state.x[:, :3] == 0.0)
+    assert state.p[0, 2, 2] == pytest.approx(0.005, rel=1e-3)
+
+
+def test_invalid_parameters_are_errors():
+    with pytest.raises(ValueError):
+        UnscentedParams(alpha=0.0)
+    with pytest.raises(ValueError):
+        UnscentedParams(kappa=-1.0)
+    with pytest.raises(ValueError):
+        TranslationUKF(DT, np.full(6, -1.0), np.ones(3))
+    with pytest.raises(ValueError):
+        TranslationUKF(0.0, np.ones(6), np.ones(3))
+    with pytest.raises(ValueError):
+        RotationUKF(DT, np.ones(5), np.ones(3))
