@@ -9,6 +9,7 @@ Tile pixel (row r, column c) of a box ``[x0, y0, x1, y1]`` samples the image at
 
 from abc import ABC, abstractmethod
 
+import cv2
 import numpy as np
 
 from ..render import Renderer, SilhouetteBatch
@@ -35,45 +36,38 @@ def tile_centres(boxes: np.ndarray, tile: int) -> tuple[np.ndarray, np.ndarray]:
     return xs, ys
 
 
+_BINOMIAL = np.array([1, 4, 6, 4, 1], np.float32) / 16
+_CRACKS = ((0, 1), (0, -1), (1, 0), (-1, 0))  # (row, column) step to the outside neighbour
+
+
 def outline_points(masks: np.ndarray, boxes: np.ndarray):
     """Sample points on the silhouette outline of every tile, with outward unit normals.
 
     A point sits on each crack between an inside tile pixel and an outside 4-neighbour
     (mid-way between their centres), so the outline is found to half a tile pixel. The normal
-    is the outward gradient of the mask smoothed by a 5×5 binomial kernel at the inside pixel
+    is the outward gradient of the mask smoothed by a 5×5 binomial kernel, at the inside pixel
     (the crack's direction where that gradient vanishes). Returns image points ``(N, 2)``,
-    normals ``(N, 2)`` and the owning tile of each point ``(N,)``, ordered by tile.
+    normals ``(N, 2)`` and the owning tile of each point ``(N,)``; a tile's points come in an
+    order that does not depend on the other tiles of the batch.
     """
-    m, t, _ = masks.shape
-    inside = masks.astype(bool)
-    padded = np.pad(inside, ((0, 0), (1, 1), (1, 1)))
-    smooth = np.pad(masks.astype(np.float32), ((0, 0), (3, 3), (3, 3)))
-    for axis in (1, 2):  # binomial [1 4 6 4 1]/16 along rows, then columns
-        n = smooth.shape[axis] - 4
-        take = [np.take(smooth, np.arange(k, k + n), axis=axis) for k in range(5)]
-        smooth = (take[0] + 4 * take[1] + 6 * take[2] + 4 * take[3] + take[4]) / 16
-    gx = 0.5 * (smooth[:, 1:-1, 2:] - smooth[:, 1:-1, :-2])
-    gy = 0.5 * (smooth[:, 2:, 1:-1] - smooth[:, :-2, 1:-1])
-    owner, rows, cols, dirs = [], [], [], []
-    for dr, dc in ((0, 1), (0, -1), (1, 0), (-1, 0)):
-        crack = inside & ~padded[:, 1 + dr : 1 + dr + t, 1 + dc : 1 + dc + t]
-        k, r, c = np.nonzero(crack)
-        owner.append(k)
-        rows.append(r)
-        cols.append(c)
-        dirs.append(np.broadcast_to(np.array([dc, dr], float), (len(k), 2)))
-    owner, rows, cols, dirs = (np.concatenate(a) for a in (owner, rows, cols, dirs))
-    order = np.argsort(owner, kind="stable")
-    owner, rows, cols, dirs = owner[order], rows[order], cols[order], dirs[order]
-    scale = (boxes[owner, 2] - boxes[owner, 0]) / t
-    points = np.stack(
-        [boxes[owner, 0] + (cols + 0.5 + 0.5 * dirs[:, 0]) * scale, boxes[owner, 1] + (rows + 0.5 + 0.5 * dirs[:, 1]) * scale],
-        axis=1,
-    )
-    grad = -np.stack([gx[owner, rows, cols], gy[owner, rows, cols]], axis=1).astype(float)
-    length = np.linalg.norm(grad, axis=1, keepdims=True)
-    normals = np.where(length > 1e-6, grad / np.maximum(length, 1e-12), dirs)
-    return points, normals, owner
+    v, t, _ = masks.shape
+    p = 3  # zero border per tile: the 5×5 kernel never mixes two tiles of the stack
+    padded = np.zeros((v, t + 2 * p, t + 2 * p), np.uint8)
+    padded[:, p:-p, p:-p] = masks
+    inside = padded[:, p:-p, p:-p].astype(bool)
+    cracks = np.stack([inside & (padded[:, p + dr : p + dr + t, p + dc : p + dc + t] == 0) for dr, dc in _CRACKS])
+    d, owner, rows, cols = np.unravel_index(np.flatnonzero(cracks), cracks.shape)
+    stacked = padded.reshape(v * (t + 2 * p), t + 2 * p).astype(np.float32)
+    smooth = cv2.sepFilter2D(stacked, -1, _BINOMIAL, _BINOMIAL, borderType=cv2.BORDER_CONSTANT)
+    flat = (owner * (t + 2 * p) + rows + p) * (t + 2 * p) + cols + p
+    smooth = smooth.ravel()
+    grad = np.stack([smooth[flat - 1] - smooth[flat + 1], smooth[flat - (t + 2 * p)] - smooth[flat + (t + 2 * p)]], axis=1)
+    steps = np.array(_CRACKS, float)[d][:, ::-1]  # (dx, dy)
+    length = np.linalg.norm(grad, axis=1, keepdims=True).astype(float)
+    normals = np.where(length > 1e-6, grad / np.maximum(length, 1e-12), steps)
+    scale = ((boxes[owner, 2] - boxes[owner, 0]) / t)[:, None]
+    centre = np.stack([cols, rows], axis=1) + 0.5 + 0.5 * steps
+    return boxes[owner, :2] + centre * scale, normals, owner
 
 
 def in_image(points: np.ndarray, width: int, height: int) -> np.ndarray:

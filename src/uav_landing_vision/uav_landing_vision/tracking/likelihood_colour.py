@@ -64,23 +64,24 @@ class ColourHistogramLikelihood(SilhouetteLikelihood):
         return 3 * self.config.bins_per_channel
 
     def _prepare(self, frame: np.ndarray) -> None:
-        """Bin index of every pixel and channel: channel c's bins are c·b … c·b + b − 1."""
+        """Bin index of every pixel (row-major) and channel: channel c's bins are c·b … c·b + b − 1."""
         width = 256 // self.config.bins_per_channel
         offsets = np.arange(3, dtype=np.uint8) * np.uint8(self.config.bins_per_channel)
-        self._bins = frame // np.uint8(width) + offsets
+        self._bins = (frame // np.uint8(width) + offsets).reshape(-1, 3)
 
     def histograms(self, masks: np.ndarray, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Raw inner and outer bin counts ``(V, B)`` of V visible tiles, one bincount for all."""
         v, t, _ = masks.shape
         xs, ys = tile_centres(boxes, t)
         rows, cols = nearest_pixel(np.stack([xs, ys], axis=-1), self.width, self.height)
-        valid_x = (xs >= -0.5) & (xs < self.width - 0.5)
-        valid_y = (ys >= -0.5) & (ys < self.height - 0.5)
-        samples = self._bins[rows[:, :, None], cols[:, None, :]]  # (V, T, T, 3)
-        keys = ((np.arange(v, dtype=np.int64)[:, None, None] * 2 + masks) * self.bins)[..., None] + samples
-        dump = 2 * v * self.bins
-        keys[~(valid_y[:, :, None] & valid_x[:, None, :] & silhouette_box(masks))] = dump
-        counts = np.bincount(keys.ravel(), minlength=dump + 1)[:dump].reshape(v, 2, self.bins)
+        ok_x = (xs >= -0.5) & (xs < self.width - 0.5)
+        ok_y = (ys >= -0.5) & (ys < self.height - 0.5)
+        ok = ok_y[:, :, None] & ok_x[:, None, :] & silhouette_box(masks)
+        samples = self._bins[rows[:, :, None] * self.width + cols[:, None, :]]  # (V, T, T, 3)
+        dump = 2 * v * self.bins  # keys from here on are dropped
+        base = np.where(ok, (np.arange(v)[:, None, None] * 2 + masks) * self.bins, dump)
+        counts = np.bincount((base[..., None] + samples).ravel(), minlength=dump + self.bins)
+        counts = counts[:dump].reshape(v, 2, self.bins)
         return counts[:, 1].astype(float), counts[:, 0].astype(float)
 
     def _score_visible(self, masks: np.ndarray, boxes: np.ndarray) -> np.ndarray:

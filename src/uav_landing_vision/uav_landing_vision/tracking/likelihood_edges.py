@@ -106,16 +106,20 @@ class ContourLikelihood(SilhouetteLikelihood):
         self._edges: np.ndarray | None = None
 
     def _prepare(self, frame: np.ndarray) -> None:
-        self._edges = canny_edges(frame, self.config.edges)
+        """The edge map, padded by ``search_px + 1`` non-edge pixels and flattened, so that a
+        search line from any point inside the image needs no bounds check."""
+        pad = self.config.search_px + 1
+        self._edges = np.pad(canny_edges(frame, self.config.edges), pad).ravel()
 
     def _score_visible(self, masks: np.ndarray, boxes: np.ndarray) -> np.ndarray:
         v, cfg = len(masks), self.config
         points, normals, owner = outline_points(masks, boxes)
         visible = in_image(points, self.width, self.height)
         points, normals, owner = points[visible], normals[visible], owner[visible]
-        line = points[:, None, :] + self._steps[None, :, None] * normals[:, None, :]  # nearest steps first
-        rows, cols = nearest_pixel(line, self.width, self.height)
-        hits = self._edges[rows, cols] & in_image(line, self.width, self.height)
+        pad, wp = self.config.search_px + 1, self.width + 2 * self.config.search_px + 2
+        line_x = np.floor(points[:, :1] + self._steps * normals[:, :1] + (0.5 + pad)).astype(np.intp)
+        line_y = np.floor(points[:, 1:] + self._steps * normals[:, 1:] + (0.5 + pad)).astype(np.intp)
+        hits = self._edges[line_y * wp + line_x]  # nearest steps first
         matched = hits.any(axis=1)
         dist = np.abs(self._steps[np.argmax(hits, axis=1)])
         p_v = np.bincount(owner, minlength=v).astype(float)
