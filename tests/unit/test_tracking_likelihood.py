@@ -1,0 +1,212 @@
+"""§5.4.1 likelihoods: (5.14) against a per-pixel loop oracle, batching, ranking, frame checks."""
+
+import cv2
+import numpy as np
+import pytest
+
+from uav_landing_vision.camera import load_camera_info_yaml
+from uav_landing_vision.config import ConfigError
+from uav_landing_vision.geometry import euler_zyx_to_quat, quat_multiply
+from uav_landing_vision.model import fixed_wing_mesh
+from uav_landing_vision.render import Renderer, SilhouetteBatch
+from uav_landing_vision.render.flyby import sky_and_sea
+from uav_landing_vision.resources import config_path
+from uav_landing_vision.sim.trajectory import FACING_CAMERA
+from uav_landing_vision.tracking.likelihood import (
+    LIKELIHOODS,
+    ColourConfig,
+    ColourHistogramLikelihood,
+    ContourConfig,
+    colour_similarity,
+    contour_likelihood,
+    dt_likelihood,
+    make_likelihood,
+    mean_edge_distance,
+)
+from uav_landing_vision.tracking.optimisation import evaluate
+from uav_landing_vision.tracking.particles import ParticleSet
+
+NAMES = sorted(LIKELIHOODS)
+Q_TRUE = quat_multiply(euler_zyx_to_quat(np.radians([10.0, -15.0, 20.0])), FACING_CAMERA)
+T_TRUE = np.array([0.4, -0.3, 8.0])
+
+
+@pytest.fixture(scope="module")
+def renderer():
+    camera = load_camera_info_yaml(config_path("camera.yaml")).rectified()
+    return Renderer(camera, fixed_wing_mesh("low"), tile=64, max_batch=64)
+
+
+@pytest.fixture(scope="module")
+def frame(renderer):
+    """The scoring mesh rendered shaded at the true pose over a sky/sea gradient."""
+    rgb, _ = renderer.shaded(Q_TRUE, T_TRUE, sky_and_sea(renderer.width, renderer.height))
+    return rgb
+
+
+def perturbed_poses():
+    """The true pose, then ±8° about each camera axis and ±0.25 m in X, Y, ±1 m in Z."""
+    quats, trans = [Q_TRUE], [T_TRUE]
+    for axis in range(3):
+        for sign in (-1.0, 1.0):
+            euler = np.zeros(3)
+            euler[axis] = sign * np.radians(8.0)
+            quats.append(quat_multiply(euler_zyx_to_quat(euler), Q_TRUE))
+            trans.append(T_TRUE)
+    for axis, step in ((0, 0.25), (1, 0.25), (2, 1.0)):
+        for sign in (-1.0, 1.0):
+            t = T_TRUE.copy()
+            t[axis] += sign * step
+            quats.append(Q_TRUE)
+            trans.append(t)
+    return np.array(quats), np.array(trans)
+
+
+def oracle_colour(frame, mask, box, bins=8):
+    """(5.14) for one tile by explicit loops over its pixels."""
+    t = mask.shape[0]
+    h, w, _ = frame.shape
+    size = (box[2] - box[0]) / t
+    rows, cols = np.nonzero(mask)
+    r0, r1, c0, c1 = rows.min(), rows.max(), cols.min(), cols.max()
+    hist = {True: np.zeros(3 * bins), False: np.zeros(3 * bins)}
+    for r in range(r0, r1 + 1):
+        for c in range(c0, c1 + 1):
+            x, y = box[0] + (c + 0.5) * size, box[1] + (r + 0.5) * size
+            if not (-0.5 <= x < w - 0.5 and -0.5 <= y < h - 0.5):
+                continue
+            pixel = frame[int(np.floor(y + 0.5)), int(np.floor(x + 0.5))]
+            for ch in range(3):
+                hist[bool(mask[r, c])][ch * bins + int(pixel[ch]) * bins // 256] += 1
+    inner, outer = hist[True] / hist[True].sum(), hist[False] / hist[False].sum()
+    return 1.0 - sum(np.sqrt(inner[b] * outer[b]) for b in range(3 * bins))
+
+
+def test_colour_metric_matches_a_per_pixel_oracle(renderer):
+    rng = np.random.default_rng(3)
+    frame = rng.integers(0, 256, (renderer.height, renderer.width, 3), dtype=np.uint8)
+    frame[200:400, 300:700] = (200, 40, 40)  # a red object on noise
+    t = 16
+    r, c = np.mgrid[:t, :t]
+    masks = np.stack([(c >= 2) & (c <= r) & (r < 14),  # triangle
+                      ((r >= 2) & (r < 9) & (c >= 5) & (c < 7)) | ((r >= 6) & (r < 8) & (c >= 2) & (c < 14)),  # cross
+                      np.abs(r - 7.5) + np.abs(c - 7.5) < 6]).astype(np.uint8)  # diamond
+    boxes = np.array([[250.0, 150.0, 650.0, 550.0], [660.3, 330.7, 730.3, 400.7], [-30.0, 600.0, 50.0, 680.0]])
+    lik = ColourHistogramLikelihood(renderer)
+    lik.prepare(frame)
+    got = lik.score_batch(SilhouetteBatch(masks, boxes, np.ones(3, bool)))
+    want = [oracle_colour(frame, masks[i], boxes[i]) for i in range(3)]
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+    assert np.all((got > 0) & (got < 1))
+
+
+def test_formulas_on_known_values():
+    h = np.array([0.5, 0.5, 0.0, 0.0])
+    assert colour_similarity(h, h) == pytest.approx(0.0)
+    assert colour_similarity(h, h[::-1]) == pytest.approx(1.0)
+    assert contour_likelihood(10, 10, 0.0, 1.0, 1.0) == pytest.approx(1.0)
+    assert contour_likelihood(10, 5, 2.0, 1.0, 1.0) == pytest.approx(np.exp(-0.5) * np.exp(-2.0))
+    d, k = mean_edge_distance(np.array([0.1, 0.3, 0.5]), np.array([0, 0, 2]), 3)
+    np.testing.assert_allclose(d, [0.2, 0.0, 0.5])
+    np.testing.assert_array_equal(k, [2, 0, 1])
+    assert dt_likelihood(0.02, 50.0) == pytest.approx(np.exp(-1.0))
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_true_pose_beats_perturbed_poses(renderer, frame, name):
+    lik = make_likelihood(name, renderer)
+    lik.prepare(frame)
+    scores = lik.score(*perturbed_poses())
+    assert scores[0] > 0
+    assert scores[0] > scores[1:].max(), scores
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_batched_scores_equal_one_at_a_time(renderer, frame, name):
+    lik = make_likelihood(name, renderer)
+    lik.prepare(frame)
+    quats, trans = perturbed_poses()
+    batched = lik.score(quats, trans)
+    single = np.array([lik.score(q[None], t[None])[0] for q, t in zip(quats, trans)])
+    np.testing.assert_array_equal(batched, single)
+    np.testing.assert_array_equal(lik.score(quats, trans), batched)  # deterministic
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_invisible_poses_score_zero(renderer, frame, name):
+    lik = make_likelihood(name, renderer)
+    lik.prepare(frame)
+    quats = np.tile(Q_TRUE, (4, 1))
+    trans = np.array([T_TRUE, [0.0, 0.0, -5.0], [0.0, 0.0, 0.01], [40.0, 0.0, 5.0]])
+    scores = lik.score(quats, trans)
+    assert scores[0] > 0
+    np.testing.assert_array_equal(scores[1:], 0.0)
+
+
+def test_particle_set_objective(renderer, frame):
+    lik = make_likelihood("colour", renderer)
+    lik.prepare(frame)
+    quats, trans = perturbed_poses()
+    particles = ParticleSet.from_poses(trans, quats)
+    np.testing.assert_array_equal(evaluate(lik, particles), lik.score(quats, trans))
+
+
+def test_edges_and_distance_transform_once_per_frame(renderer, frame, monkeypatch):
+    calls = {"Canny": 0, "distanceTransform": 0}
+    for fn in calls:
+        original = getattr(cv2, fn)
+
+        def spy(*args, _original=original, _fn=fn, **kwargs):
+            calls[_fn] += 1
+            return _original(*args, **kwargs)
+
+        monkeypatch.setattr(cv2, fn, spy)
+    dt, contour = make_likelihood("distance_transform", renderer), make_likelihood("contour", renderer)
+    quats, trans = perturbed_poses()
+    for _ in range(2):
+        dt.prepare(frame)
+        contour.prepare(frame)
+        for _ in range(3):
+            dt.score(quats, trans)
+            contour.score(quats, trans)
+    assert calls == {"Canny": 4, "distanceTransform": 2}
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [
+        np.zeros((720, 1280, 3), np.float32),
+        np.zeros((720, 1280), np.uint8),
+        np.zeros((720, 1280, 4), np.uint8),
+        np.zeros((360, 640, 3), np.uint8),
+        np.zeros((0, 0, 3), np.uint8),
+        [[0, 0, 0]],
+    ],
+    ids=["float", "grey", "rgba", "size", "empty", "list"],
+)
+@pytest.mark.parametrize("name", NAMES)
+def test_bad_frames_are_refused(renderer, name, bad):
+    with pytest.raises(ValueError, match="frame"):
+        make_likelihood(name, renderer).prepare(bad)
+
+
+def test_scoring_needs_a_frame(renderer):
+    with pytest.raises(RuntimeError, match="prepare"):
+        make_likelihood("colour", renderer).score(Q_TRUE[None], T_TRUE[None])
+
+
+def test_factory_configs(renderer):
+    assert make_likelihood("contour", renderer, {"search_px": 25}).config == ContourConfig(search_px=25)
+    assert make_likelihood("colour", renderer).config == ColourConfig(bins_per_channel=8)
+    with pytest.raises(ValueError, match="unknown likelihood"):
+        make_likelihood("edges", renderer)
+    with pytest.raises(ConfigError, match="unknown key"):
+        make_likelihood("distance_transform", renderer, {"sigma": 50.0, "lambda": 1.0})
+    with pytest.raises(ConfigError, match="sigma"):
+        make_likelihood("distance_transform", renderer, {"sigma": -1.0})
+    with pytest.raises(ConfigError, match="ContourConfig"):
+        make_likelihood("contour", renderer, ColourConfig())
+    with pytest.raises(ValueError, match="bins_per_channel"):
+        ColourConfig(bins_per_channel=7)
+    with pytest.raises(ValueError, match="canny"):
+        make_likelihood("contour", renderer, {"edges": {"canny_low": 200.0, "canny_high": 100.0}})
