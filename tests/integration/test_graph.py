@@ -15,7 +15,7 @@ from test_node_common import SMALL_CAMERA, frame_entries, rgb_frame, ros, write_
 from uav_landing_vision.graph import GRAPH_NODES, node_command
 from uav_landing_vision.nodes.base import stamp_ns
 from uav_landing_vision.nodes.image import image_to_numpy
-from uav_landing_vision.nodes.qos import RELIABLE_QOS, SENSOR_QOS
+from uav_landing_vision.nodes.qos import RELIABLE_QOS, IMAGE_QOS
 
 REPO = Path(__file__).parents[2]
 PROCESS_TIMEOUT_S = 120.0
@@ -40,7 +40,7 @@ def test_bag_replayed_through_undistort_in_separate_processes(ros, ros_domain_id
     frames = 8
     bag = write_bag(tmp_path / "bag", frame_entries(SMALL_CAMERA, frames))
     rect = []
-    sub = ros.probe.create_subscription(Image, "/camera/image_rect", rect.append, SENSOR_QOS)
+    sub = ros.probe.create_subscription(Image, "/camera/image_rect", rect.append, IMAGE_QOS)
     acked = []
     log = tmp_path / "graph.log"
     graph = _graph(

@@ -15,7 +15,7 @@ from test_node_common import SMALL_CAMERA, frame_entries, ros, write_bag  # noqa
 from uav_landing_vision.config import ConfigError
 from uav_landing_vision.nodes.bag_player import BagPlayer
 from uav_landing_vision.nodes.base import stamp_ns
-from uav_landing_vision.nodes.qos import RELIABLE_QOS, SENSOR_QOS
+from uav_landing_vision.nodes.qos import RELIABLE_QOS, IMAGE_QOS
 
 FRAMES = 5
 
@@ -68,8 +68,8 @@ def playbacks():
 
 @pytest.mark.parametrize("storage", [StoragePlugin.MCAP, StoragePlugin.SQLITE3], ids=["mcap", "sqlite3"])
 def test_timed_playback_publishes_every_topic_with_its_type_and_the_clock(ros, playbacks, tmp_path, storage):
-    images = ros.collect(Image, "/camera/image_raw", SENSOR_QOS)
-    infos = ros.collect(CameraInfo, "/camera/camera_info", SENSOR_QOS)
+    images = ros.collect(Image, "/camera/image_raw", IMAGE_QOS)
+    infos = ros.collect(CameraInfo, "/camera/camera_info", IMAGE_QOS)
     truths = ros.collect(PoseStamped, "/uav/ground_truth", RELIABLE_QOS)
     clocks = ros.collect(Clock, "/clock", RELIABLE_QOS)
     playback = Playback(
@@ -99,7 +99,7 @@ def test_within_one_timestamp_the_frame_comes_after_its_camera_info(ros, tmp_pat
 def test_paced_playback_publishes_a_frame_only_after_the_previous_one_is_acknowledged(ros, playbacks, tmp_path):
     """The probe holds back the acknowledgement of frame 2 until the player has reported on
     /diagnostics once more (the player spins ~1 s meanwhile): frame 3 must not come before it."""
-    frames = ros.collect(Image, "/camera/image_raw", SENSOR_QOS)
+    frames = ros.collect(Image, "/camera/image_raw", IMAGE_QOS)
     reports = ros.collect(DiagnosticArray, "/diagnostics", RELIABLE_QOS)
     ack_pub = ros.probe.create_publisher(PoseStamped, "test/ack", RELIABLE_QOS)
     playback = Playback(ros, _bag(tmp_path), mode="paced", ack_topic="test/ack", ack_type="geometry_msgs/msg/PoseStamped", ack_timeout_s=60.0)
@@ -125,7 +125,7 @@ def test_paced_playback_publishes_a_frame_only_after_the_previous_one_is_acknowl
 
 
 def test_paced_playback_goes_on_after_an_ack_timeout(ros, playbacks, tmp_path):
-    frames = ros.collect(Image, "/camera/image_raw", SENSOR_QOS)
+    frames = ros.collect(Image, "/camera/image_raw", IMAGE_QOS)
     ack_pub = ros.probe.create_publisher(PoseStamped, "test/ack", RELIABLE_QOS)
     playback = Playback(ros, _bag(tmp_path), mode="paced", ack_topic="test/ack", ack_type="geometry_msgs/msg/PoseStamped", ack_timeout_s=0.5)
     playbacks.append(playback.start())
@@ -158,7 +158,7 @@ def test_undeserialisable_messages_and_uninstalled_types_are_skipped(ros, playba
     with Writer(tmp_path / "custom", version=9) as writer:  # a type this machine does not have
         conn = writer.add_connection("/custom", "foo_msgs/msg/Bar", msgdef="int32 a\n", rihs01="RIHS01_" + "0" * 64)
         writer.write(conn, 1, b"\x00\x01\x00\x00\x07\x00\x00\x00")
-    images = ros.collect(Image, "/camera/image_raw", SENSOR_QOS)
+    images = ros.collect(Image, "/camera/image_raw", IMAGE_QOS)
     truths = ros.collect(PoseStamped, "/uav/ground_truth", RELIABLE_QOS)
     playback = Playback(ros, bag, mode="timed", rate=1000.0, ready_topics=["/camera/image_raw", "/uav/ground_truth"])
     playbacks.append(playback.start())

@@ -22,7 +22,7 @@ from uav_landing_vision.camera import CameraModel, camera_info_fields
 from uav_landing_vision.config import ConfigError
 from uav_landing_vision.nodes.base import LandingNode
 from uav_landing_vision.nodes.image import ImageError, image_to_numpy, numpy_to_image
-from uav_landing_vision.nodes.qos import RELIABLE_QOS, SENSOR_QOS, qos_for_type
+from uav_landing_vision.nodes.qos import IMAGE_QOS, RELIABLE_QOS, SENSOR_QOS, qos_for_type
 
 SPIN_TIMEOUT_S = 30.0  # generous: discovery takes seconds and other jobs share the 2 cores
 SMALL_CAMERA = CameraModel(40, 30, np.array([[36.0, 0.0, 19.6], [0.0, 36.0, 14.8], [0.0, 0.0, 1.0]]), np.array([-0.25, 0.08, 0.001, -0.002, 0.0]))
@@ -161,10 +161,11 @@ def test_numpy_to_image_rejects_arrays_that_do_not_fit_the_encoding():
         numpy_to_image(np.zeros((4, 4, 2), np.uint8), "yuv422", Image().header)
 
 
-def test_qos_images_best_effort_everything_else_reliable_depth_10():
+def test_qos_reliable_in_the_graph_best_effort_only_for_camera_drivers():
     assert SENSOR_QOS.reliability == ReliabilityPolicy.BEST_EFFORT
-    assert qos_for_type("sensor_msgs/msg/Image") is SENSOR_QOS
-    assert qos_for_type("sensor_msgs/msg/CameraInfo") is SENSOR_QOS
+    assert IMAGE_QOS.reliability == ReliabilityPolicy.RELIABLE
+    assert qos_for_type("sensor_msgs/msg/Image") is IMAGE_QOS
+    assert qos_for_type("sensor_msgs/msg/CameraInfo") is IMAGE_QOS
     for name in ("uav_landing_msgs/msg/PoseHypotheses", "geometry_msgs/msg/PoseWithCovarianceStamped", "geometry_msgs/msg/PoseStamped"):
         profile = qos_for_type(name)
         assert profile is RELIABLE_QOS and profile.reliability == ReliabilityPolicy.RELIABLE and profile.depth >= 10

@@ -10,20 +10,20 @@ from test_node_common import SMALL_CAMERA, camera_info_msg, image_msg, rgb_frame
 from uav_landing_vision.camera import save_camera_info_yaml
 from uav_landing_vision.config import ConfigError
 from uav_landing_vision.nodes.image import image_to_numpy
-from uav_landing_vision.nodes.qos import SENSOR_QOS
+from uav_landing_vision.nodes.qos import IMAGE_QOS, SENSOR_QOS
 from uav_landing_vision.nodes.undistort import Undistort
 
 
 class Rig:
     """The node under test wired to the probe's publishers and collecting subscriptions."""
 
-    def __init__(self, ros, **node_kwargs):
+    def __init__(self, ros, input_qos=IMAGE_QOS, **node_kwargs):
         self.ros = ros
         self.node = ros.add(Undistort(context=ros.context, **node_kwargs))
-        self.image_pub = ros.probe.create_publisher(Image, "camera/image_raw", SENSOR_QOS)
-        self.info_pub = ros.probe.create_publisher(CameraInfo, "camera/camera_info", SENSOR_QOS)
-        self.rect = ros.collect(Image, "camera/image_rect", SENSOR_QOS)
-        self.rect_info = ros.collect(CameraInfo, "camera/camera_info_rect", SENSOR_QOS)
+        self.image_pub = ros.probe.create_publisher(Image, "camera/image_raw", input_qos)
+        self.info_pub = ros.probe.create_publisher(CameraInfo, "camera/camera_info", input_qos)
+        self.rect = ros.collect(Image, "camera/image_rect", IMAGE_QOS)
+        self.rect_info = ros.collect(CameraInfo, "camera/camera_info_rect", IMAGE_QOS)
         info_from_topic = not self.node.config.camera_info_file
         assert ros.spin_until(
             lambda: self.image_pub.get_subscription_count() >= 1
@@ -129,6 +129,14 @@ def test_a_new_calibration_replaces_the_old_one(ros):
     pixels = rgb_frame(other, 4)
     rect = rig.send_image(image_msg(pixels, "rgb8"))
     np.testing.assert_array_equal(image_to_numpy(rect), _expected(other, pixels))
+
+
+def test_best_effort_camera_driver_with_camera_qos_sensor_data(ros):
+    rig = Rig(ros, input_qos=SENSOR_QOS, parameter_overrides=[Parameter("camera_qos", value="sensor_data")])
+    rig.send_info(SMALL_CAMERA)
+    pixels = rgb_frame(SMALL_CAMERA, 6)
+    rect = rig.send_image(image_msg(pixels, "rgb8"))
+    np.testing.assert_array_equal(image_to_numpy(rect), _expected(SMALL_CAMERA, pixels))
 
 
 def test_calibration_from_a_file_parameter(ros, tmp_path):

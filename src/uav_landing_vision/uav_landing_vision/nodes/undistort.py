@@ -1,6 +1,6 @@
 """``undistort``: ``camera/image_raw`` → ``camera/image_rect`` by the calibrated lens model (3.16)–(3.17).
 
-Subscribes ``camera/image_raw`` and ``camera/camera_info`` (sensor-data QoS); publishes
+Subscribes ``camera/image_raw`` and ``camera/camera_info``; publishes
 ``camera/image_rect`` (same header, same encoding) and, with the same header,
 ``camera/camera_info_rect`` (same K, zero distortion). The remap tables are built once per
 distinct calibration. Parameters (``config/undistort.yaml``):
@@ -9,6 +9,8 @@ distinct calibration. Parameters (``config/undistort.yaml``):
 - ``camera_info_file``: a camera_info YAML (``config/camera.yaml`` form) for cameras that
   publish no ``camera_info``; when set, the node uses it and does not subscribe to
   ``camera/camera_info``. Relative paths are relative to the working directory.
+- ``camera_qos``: ``reliable`` (the graph's image QoS, ``qos.IMAGE_QOS``) or ``sensor_data``
+  (best effort, to accept a camera driver that publishes best effort; frames may be lost).
 
 Dropped (logged, counted on ``/diagnostics``): images before any calibration, images whose
 size differs from the calibration's, unsupported encodings, malformed data, and unusable
@@ -26,7 +28,7 @@ from ..camera import CameraInfoError, camera_from_info_fields, camera_info_field
 from ..config import ConfigError
 from .base import LandingNode, run_node
 from .image import ImageError, image_to_numpy, numpy_to_image
-from .qos import SENSOR_QOS
+from .qos import IMAGE_QOS, SENSOR_QOS
 
 _INTERPOLATION = {"nearest": cv2.INTER_NEAREST, "linear": cv2.INTER_LINEAR, "cubic": cv2.INTER_CUBIC}
 
@@ -35,6 +37,7 @@ _INTERPOLATION = {"nearest": cv2.INTER_NEAREST, "linear": cv2.INTER_LINEAR, "cub
 class UndistortConfig:
     interpolation: Literal["nearest", "linear", "cubic"] = "linear"
     camera_info_file: str = ""  # calibration YAML used instead of the camera_info topic; "" = topic
+    camera_qos: Literal["reliable", "sensor_data"] = "reliable"  # QoS of the two input subscriptions
 
 
 class Undistort(LandingNode):
@@ -44,8 +47,9 @@ class Undistort(LandingNode):
         self._camera = None
         self._maps = None
         self._info_key = None
-        self._image_pub = self.create_publisher(Image, "camera/image_rect", SENSOR_QOS)
-        self._info_pub = self.create_publisher(CameraInfo, "camera/camera_info_rect", SENSOR_QOS)
+        self._image_pub = self.create_publisher(Image, "camera/image_rect", IMAGE_QOS)
+        self._info_pub = self.create_publisher(CameraInfo, "camera/camera_info_rect", IMAGE_QOS)
+        camera_qos = IMAGE_QOS if self.config.camera_qos == "reliable" else SENSOR_QOS
         if self.config.camera_info_file:
             try:
                 self._use_camera(load_camera_info_yaml(self.config.camera_info_file))
@@ -53,8 +57,8 @@ class Undistort(LandingNode):
                 raise ConfigError(f"camera_info_file: {exc}") from exc
         else:
             # Created before the image subscription: when both are ready, camera_info is taken first.
-            self.create_subscription(CameraInfo, "camera/camera_info", self._on_camera_info, SENSOR_QOS)
-        self.create_subscription(Image, "camera/image_raw", self._on_image, SENSOR_QOS)
+            self.create_subscription(CameraInfo, "camera/camera_info", self._on_camera_info, camera_qos)
+        self.create_subscription(Image, "camera/image_raw", self._on_image, camera_qos)
 
     def _use_camera(self, camera) -> None:
         self._camera = camera
