@@ -8,7 +8,7 @@ from pyrecest.distributions import BinghamDistribution
 from pyrecest.filters import BinghamFilter
 from scipy.spatial.transform import Rotation
 
-from uav_landing_vision.filters import bingham
+from uav_landing_vision.filters import bingham, concat_filters, take_filters
 from uav_landing_vision.filters.motion import KINDS, MotionFilterConfig, TranslationFilter, make_rotation_filter
 from uav_landing_vision.filters.simulation import Scenario, compare
 from uav_landing_vision.filters.ubif import angular_velocity
@@ -29,7 +29,7 @@ def test_angular_velocity_matches_scipy():
 
 
 def test_ubif_update_equals_pyrecest_bingham_filter():
-    cfg = MotionFilterConfig(rotation_filter="ubif", initial_z=(-40.0, -40.0, -40.0), measurement_z=(-90.0, -90.0, -90.0))
+    cfg = MotionFilterConfig(rotation_filter="ubif", initial_z=(-40.0,) * 3, measurement_z=(-90.0,) * 3)
     filt = make_rotation_filter(cfg)
     q0, meas = Rotation.random(2, random_state=3).as_quat()
     state = filt.update(filt.init(q0[None], np.zeros((1, 3))), meas[None])
@@ -73,14 +73,19 @@ def test_ubigaf_sigma_points_reproduce_the_bingham_gauss_moments():
         np.testing.assert_allclose(g, want, atol=1e-3 * np.abs(want).max())
 
 
-def test_states_can_be_resampled():
-    for kind in KINDS:
-        filt = make_rotation_filter(MotionFilterConfig(rotation_filter=kind))
-        q = Rotation.random(5, random_state=8).as_quat()
-        state = filt.predict(filt.init(q, np.zeros((5, 3))))
-        picked = state.take(np.array([4, 4, 0]))
-        np.testing.assert_allclose(filt.estimate(picked)[0], filt.estimate(state)[0][[4, 4, 0]])
-        assert filt.update(picked, q[[4, 4, 0]]) is not None
+@pytest.mark.parametrize("kind", KINDS)
+def test_states_can_be_resampled_and_joined(kind):
+    filt = make_rotation_filter(MotionFilterConfig(rotation_filter=kind))
+    q = Rotation.random(5, random_state=8).as_quat()
+    state = filt.predict(filt.init(q, np.zeros((5, 3))))
+    picked = take_filters(state, np.array([4, 4, 0]))
+    np.testing.assert_allclose(filt.estimate(picked)[0], filt.estimate(state)[0][[4, 4, 0]])
+    fresh = filt.init(q[:2], np.zeros((2, 3)))
+    joined = concat_filters([picked, fresh])
+    np.testing.assert_allclose(filt.estimate(joined)[0], np.r_[filt.estimate(picked)[0], q[:2] * np.sign(q[:2, 3:])])
+    z = q[[4, 4, 0, 0, 1]]
+    updated = filt.update(joined, z)  # the fresh part has no predicted sigma points
+    np.testing.assert_allclose(filt.estimate(updated)[0][:3], filt.estimate(filt.update(picked, z[:3]))[0], atol=1e-12)
 
 
 def test_translation_filter_tracks_constant_velocity():

@@ -55,6 +55,18 @@ def max_concentration() -> float:
     return _table().z_max
 
 
+def check_concentration(z, name: str) -> np.ndarray:
+    """``(z1, z2, z3)`` of ``Z = diag(z1, z2, z3, 0)``: three finite values in [−z_max, 0)."""
+    z = np.asarray(z, dtype=float)
+    if z.shape == (4,):
+        if z[3] != 0.0:
+            raise ValueError(f"{name}: the last concentration must be 0, got {z[3]}")
+        z = z[:3]
+    if z.shape != (3,) or not np.all(np.isfinite(z)) or np.any(z >= 0) or np.any(z < -max_concentration()):
+        raise ValueError(f"{name} must hold three values in [-{max_concentration():g}, 0), got {z}")
+    return z
+
+
 def clamp_concentration(z: np.ndarray) -> np.ndarray:
     """Concentrations limited to the table's range (a floor on the spread, ~0.26° at 1e5)."""
     return np.clip(z, -_table().z_max, 0.0)
@@ -228,11 +240,7 @@ def sigma_points(m: np.ndarray, z: np.ndarray, n_total: int = 14) -> tuple[np.nd
     hemisphere is kept, carrying the pair's weight, so the weights sum to one and
     ``Σ w q qᵀ`` equals the covariance (C.6) exactly.
     """
-    return canonical_sigma_points(moments(z), m, n_total)
-
-
-def canonical_sigma_points(f: np.ndarray, m: np.ndarray, n_total: int = 14) -> tuple[np.ndarray, np.ndarray]:
-    """Appendix D points for given moments ``f (..., 4)`` (ascending, mode last) and frame ``M``."""
+    f = moments(z)
     w_b = f[..., :3] + (1.0 - 1.0 / n_total) * f[..., 3:4] / 3.0  # w_Bi of (D.6)–(D.9)
     alpha = np.arcsin(np.sqrt(np.clip(f[..., :3] / w_b, 0.0, 1.0)))  # (D.6)
     shape = f.shape[:-1]
@@ -247,7 +255,7 @@ def canonical_sigma_points(f: np.ndarray, m: np.ndarray, n_total: int = 14) -> t
 
 
 def tangent_covariance(q: np.ndarray, s: np.ndarray) -> np.ndarray:
-    """Covariance ``(..., 3, 3)`` of the small-angle rotation error ``2·vec(q̄ ⊗ x)``, ``E[xxᵀ] = s``.
+    """Covariance ``(..., 3, 3)`` of the small-angle error ``2·vec(q̄ ⊗ x)`` where ``E[xxᵀ] = s``.
 
     The components of ``vec(q̄ ⊗ x)`` are ``(q ⊗ e_k)·x``, so the result is ``4 Tᵀ S T`` with the
     tangent basis ``T = [q ⊗ e_x, q ⊗ e_y, q ⊗ e_z]``.
@@ -257,7 +265,7 @@ def tangent_covariance(q: np.ndarray, s: np.ndarray) -> np.ndarray:
 
 
 def small_rotation_moment(sigma: np.ndarray) -> np.ndarray:
-    """``E[e eᵀ]`` of ``e = [θ/2, √(1 − |θ|²/4)]`` for a rotation vector ``θ`` of covariance ``sigma (..., 3, 3)``.
+    """``E[e eᵀ]`` of ``e = [θ/2, √(1 − |θ|²/4)]``, ``θ`` a rotation vector of covariance ``sigma``.
 
     To second order: ``diag-block(Σ/4, 1 − tr Σ/4)``, the inverse of :func:`tangent_covariance`.
     """

@@ -13,7 +13,7 @@ from typing import Literal, Protocol
 import numpy as np
 
 from . import bingham
-from .ubif import UBiF, _concentration
+from .ubif import UBiF
 from .ubigaf import UBiGaF
 from .ukf import RotationUKF, TranslationUKF, UnscentedParams
 
@@ -47,7 +47,7 @@ class MotionFilterConfig:
         if not (np.isfinite(self.dt) and self.dt > 0):
             raise ValueError(f"dt must be positive, got {self.dt}")
         for name in ("process_z", "measurement_z", "initial_z"):
-            _concentration(getattr(self, name), name)
+            bingham.check_concentration(getattr(self, name), name)
         stds = ("omega_process_std", "initial_omega_std", "position_process_std", "velocity_process_std",
                 "position_measurement_std", "initial_position_std", "initial_velocity_std")
         for name in stds:
@@ -76,19 +76,18 @@ class RotationFilter(Protocol):
     def covariance(self, state) -> np.ndarray: ...
 
 
-class _UKFRotation:
+class _UKFRotation(RotationUKF):
     def __init__(self, cfg: MotionFilterConfig):
-        var_w = cfg.omega_process_std**2
-        q = np.concatenate([tangent_variance(cfg.process_z), np.full(3, var_w)])  # Q^a (A.9)
-        self.filter = RotationUKF(cfg.dt, q, tangent_variance(cfg.measurement_z), cfg.unscented)
+        q = np.concatenate([tangent_variance(cfg.process_z), np.full(3, cfg.omega_process_std**2)])  # Q^a (A.9)
+        super().__init__(cfg.dt, q, tangent_variance(cfg.measurement_z), cfg.unscented)
         self.p0 = np.concatenate([tangent_variance(cfg.initial_z), np.full(3, cfg.initial_omega_std**2)])
-        self.predict, self.update, self.estimate = self.filter.predict, self.filter.update, self.filter.estimate
 
     def init(self, quat, omega):
-        return self.filter.init(quat, omega, self.p0)
+        return super().init(quat, omega, self.p0)
 
     @staticmethod
     def covariance(state) -> np.ndarray:
+        """Covariance of the error Rodrigues parameters ``d`` (≈ rotation vector), rad²."""
         return state.p[..., :3, :3].copy()
 
 
@@ -115,17 +114,16 @@ def make_rotation_filter(cfg: MotionFilterConfig) -> RotationFilter:
     return {"ukf": _UKFRotation, "ubif": _UBiFRotation, "ubigaf": _UBiGaFRotation}[cfg.rotation_filter](cfg)
 
 
-class TranslationFilter:
+class TranslationFilter(TranslationUKF):
     """The translational UKF (A.1)–(A.2) with the configured noises; ``init(pos, vel)``."""
 
     def __init__(self, cfg: MotionFilterConfig):
         q = np.repeat([cfg.position_process_std**2, cfg.velocity_process_std**2], 3)
-        self.filter = TranslationUKF(cfg.dt, q, np.full(3, cfg.position_measurement_std**2), cfg.unscented)
+        super().__init__(cfg.dt, q, np.full(3, cfg.position_measurement_std**2), cfg.unscented)
         self.p0 = np.repeat([cfg.initial_position_std**2, cfg.initial_velocity_std**2], 3)
-        self.predict, self.update = self.filter.predict, self.filter.update
 
     def init(self, pos, vel):
-        return self.filter.init(pos, vel, self.p0)
+        return super().init(pos, vel, self.p0)
 
     @staticmethod
     def estimate(state) -> tuple[np.ndarray, np.ndarray]:

@@ -10,7 +10,7 @@ import numpy as np
 
 from ..geometry import omega_quat, quat_canonical, quat_conjugate, quat_multiply
 from . import bingham
-from .ukf import _spd, _take
+from .ukf import spd_matrix, take_filters
 
 
 @dataclass(frozen=True)
@@ -23,7 +23,7 @@ class UBiFState:
     prev: np.ndarray
 
     def take(self, idx) -> "UBiFState":
-        return _take(self, idx)
+        return take_filters(self, idx)
 
 
 def angular_velocity(q_prev: np.ndarray, q_now: np.ndarray, dt: float) -> np.ndarray:
@@ -46,16 +46,17 @@ class UBiF:
         if not dt > 0:
             raise ValueError(f"dt must be positive, got {dt}")
         self.dt = dt
-        self.process_z = _concentration(process_z, "process_z")
-        self.measurement_z = _concentration(measurement_z, "measurement_z")
+        self.process_z = bingham.check_concentration(process_z, "process_z")
+        self.measurement_z = bingham.check_concentration(measurement_z, "measurement_z")
         self.process_cov = bingham.covariance(np.eye(4), self.process_z)  # C_Φ (C.6), M^Φ = I
         # δq^r = Ω(ξ^r) of (3.12): the angular-velocity disturbance integrated over Δt.
-        self.disturbance_cov = bingham.small_rotation_moment(dt**2 * _spd(omega_process_cov, 3, "omega_process_cov"))
+        omega_cov = spd_matrix(omega_process_cov, 3, "omega_process_cov")
+        self.disturbance_cov = bingham.small_rotation_moment(dt**2 * omega_cov)
 
     def init(self, quat: np.ndarray, omega: np.ndarray, z0) -> UBiFState:
         """Filters with mode ``quat (M, 4)``, concentrations ``z0`` and angular velocity ``omega``."""
         quat = quat_canonical(np.asarray(quat, float))
-        z = np.broadcast_to(_concentration(z0, "z0"), quat.shape[:-1] + (3,)).copy()
+        z = np.broadcast_to(bingham.check_concentration(z0, "z0"), quat.shape[:-1] + (3,)).copy()
         return UBiFState(bingham.frame(quat), z, np.asarray(omega, float).copy(), quat)
 
     def predict(self, s: UBiFState) -> UBiFState:
@@ -87,15 +88,3 @@ class UBiF:
     def covariance(s: UBiFState) -> np.ndarray:
         """Rotation-error covariance ``(M, 3, 3)`` about the mode, rad², from (C.6)."""
         return bingham.tangent_covariance(bingham.mode(s.m), bingham.covariance(s.m, s.z))
-
-
-def _concentration(z, name: str) -> np.ndarray:
-    """``(z1, z2, z3)`` of ``Z = diag(z1, z2, z3, 0)``: three finite values in [−z_max, 0)."""
-    z = np.asarray(z, dtype=float)
-    if z.shape == (4,):
-        if z[3] != 0.0:
-            raise ValueError(f"{name}: the last concentration must be 0, got {z[3]}")
-        z = z[:3]
-    if z.shape != (3,) or not np.all(np.isfinite(z)) or np.any(z >= 0) or np.any(z < -bingham.max_concentration()):
-        raise ValueError(f"{name} must hold three values in [-{bingham.max_concentration():g}, 0), got {z}")
-    return z

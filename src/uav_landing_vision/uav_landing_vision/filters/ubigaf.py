@@ -11,8 +11,7 @@ import numpy as np
 
 from ..geometry import omega_quat, quat_canonical, quat_conjugate, quat_multiply
 from . import bingham
-from .ubif import _concentration
-from .ukf import _spd, _take
+from .ukf import spd_matrix, take_filters
 
 N_SIGMA = 13  # 2r + 2s + 1 with r = s = 3 (Appendix E)
 
@@ -35,7 +34,7 @@ class UBiGaFState:
     weights: np.ndarray | None = None
 
     def take(self, idx) -> "UBiGaFState":
-        return _take(self, idx)
+        return take_filters(self, idx)
 
 
 def _align(q: np.ndarray, ref: np.ndarray) -> np.ndarray:
@@ -94,16 +93,18 @@ class UBiGaF:
         if not dt > 0:
             raise ValueError(f"dt must be positive, got {dt}")
         self.dt = dt
-        self.process_cov = bingham.covariance(np.eye(4), _concentration(process_z, "process_z"))
-        self.measurement_cov = bingham.covariance(np.eye(4), _concentration(measurement_z, "measurement_z"))
-        self.omega_process_cov = _spd(omega_process_cov, 3, "omega_process_cov")  # P^r
+        process_z = bingham.check_concentration(process_z, "process_z")
+        measurement_z = bingham.check_concentration(measurement_z, "measurement_z")
+        self.process_cov = bingham.covariance(np.eye(4), process_z)  # C_Φ (C.6)
+        self.measurement_cov = bingham.covariance(np.eye(4), measurement_z)  # C_Λ (C.6)
+        self.omega_process_cov = spd_matrix(omega_process_cov, 3, "omega_process_cov")  # P^r
 
     def init(self, quat: np.ndarray, omega: np.ndarray, z0, omega_cov) -> UBiGaFState:
         """Filters at ``quat (M, 4)``, ``omega (M, 3)``; Bingham spread ``z0``, ``omega_cov (3, 3)``."""
         quat = quat_canonical(np.asarray(quat, float))
-        p_q = bingham.covariance(bingham.frame(quat), _concentration(z0, "z0"))
+        p_q = bingham.covariance(bingham.frame(quat), bingham.check_concentration(z0, "z0"))
         shape = quat.shape[:-1]
-        p_w = np.broadcast_to(_spd(omega_cov, 3, "omega_cov"), shape + (3, 3)).copy()
+        p_w = np.broadcast_to(spd_matrix(omega_cov, 3, "omega_cov"), shape + (3, 3)).copy()
         return UBiGaFState(quat, np.asarray(omega, float).copy(), p_w, p_q, np.zeros(shape + (4, 3)))
 
     def sigma_points(self, q_ref, m_w, p_w, p_q, p_qw):
@@ -161,7 +162,8 @@ class UBiGaF:
         p_r = 0.5 * (p_r + np.swapaxes(p_r, -1, -2))
         half = r[..., :3] / 2.0
         scale = np.maximum(1.0, np.linalg.norm(half, axis=-1, keepdims=True))
-        err = np.concatenate([half / scale, np.sqrt(np.maximum(0.0, 1.0 - np.sum((half / scale) ** 2, -1, keepdims=True)))], -1)
+        vec = half / scale
+        err = np.concatenate([vec, np.sqrt(np.maximum(0.0, 1.0 - np.sum(vec**2, -1, keepdims=True)))], -1)
         q = quat_canonical(quat_multiply(s.q, err))
         return UBiGaFState(q, r[..., 3:], p_r[..., 3:, 3:], *self.quaternion_moments(q, p_r))  # step 8
 
@@ -169,8 +171,9 @@ class UBiGaF:
     def quaternion_moments(q: np.ndarray, p_r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``P_q`` (C.15) and ``P_qω`` (C.16) about mode ``q`` from the error-state covariance ``p_r``.
 
-        With ``q_true = q ⊗ e``, ``e = [d/2, √(1 − |d|²/4)]``: ``E[e eᵀ]`` by :func:`bingham.small_rotation_moment`
-        and ``E[e (ω − m)ᵀ] = [P_dω/2; 0]``, mapped by the left multiplication ``L(q)``.
+        With ``q_true = q ⊗ e``, ``e = [d/2, √(1 − |d|²/4)]``: ``E[e eᵀ]`` is
+        :func:`bingham.small_rotation_moment` and ``E[e (ω − m)ᵀ] = [P_dω/2; 0]``, both mapped by
+        the left multiplication ``L(q)``.
         """
         e = bingham.small_rotation_moment(p_r[..., :3, :3])
         e_w = np.zeros(p_r.shape[:-2] + (4, 3))

@@ -12,7 +12,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..geometry import omega_quat, quat_canonical, quat_conjugate, quat_from_rodrigues, quat_multiply, rodrigues_from_quat
+from ..geometry import (
+    omega_quat,
+    quat_canonical,
+    quat_conjugate,
+    quat_from_rodrigues,
+    quat_multiply,
+    rodrigues_from_quat,
+)
 
 
 @dataclass(frozen=True)
@@ -66,8 +73,22 @@ def kalman_update(x_sig, x_mean, p_xx, z_sig, z, r, wm, wc):
     return x, 0.5 * (p + np.swapaxes(p, -1, -2))
 
 
-def _take(state, idx):
+def take_filters(state, idx):
+    """The filters ``idx`` of a batched state dataclass (e.g. after resampling)."""
     return type(state)(**{k: (None if v is None else v[idx]) for k, v in vars(state).items()})
+
+
+def concat_filters(states):
+    """One batched state from several of the same type (e.g. kept and freshly boosted particles).
+
+    Predicted sigma points are kept only when every part has them; otherwise the update
+    draws them again from the covariance.
+    """
+    fields = vars(states[0]).keys()
+    return type(states[0])(**{
+        k: None if any(vars(s)[k] is None for s in states) else np.concatenate([vars(s)[k] for s in states])
+        for k in fields
+    })
 
 
 @dataclass(frozen=True)
@@ -80,7 +101,7 @@ class UKFState:
 
     def take(self, idx) -> "UKFState":
         """The filters ``idx`` (e.g. after resampling)."""
-        return _take(self, idx)
+        return take_filters(self, idx)
 
 
 class TranslationUKF:
@@ -89,15 +110,15 @@ class TranslationUKF:
     def __init__(self, dt: float, process_cov, measurement_cov, params: UnscentedParams = UnscentedParams()):
         if not dt > 0:
             raise ValueError(f"dt must be positive, got {dt}")
-        self.q = _spd(process_cov, 6, "process_cov")
-        self.r = _spd(measurement_cov, 3, "measurement_cov")
+        self.q = spd_matrix(process_cov, 6, "process_cov")
+        self.r = spd_matrix(measurement_cov, 3, "measurement_cov")
         self.f = np.block([[np.eye(3), dt * np.eye(3)], [np.zeros((3, 3)), np.eye(3)]])  # (A.2)
         self.wm, self.wc, self.iota = params.weights(6)
 
     def init(self, pos: np.ndarray, vel: np.ndarray, cov) -> UKFState:
         """Filters at ``pos (M, 3)``, ``vel (M, 3)`` with initial covariance ``cov (6, 6)``."""
         x = np.concatenate([pos, vel], axis=-1).astype(float)
-        return UKFState(x, np.broadcast_to(_spd(cov, 6, "cov"), x.shape[:-1] + (6, 6)).copy())
+        return UKFState(x, np.broadcast_to(spd_matrix(cov, 6, "cov"), x.shape[:-1] + (6, 6)).copy())
 
     def predict(self, s: UKFState) -> UKFState:
         """Prediction (A.12)–(A.21) through the model (A.2)."""
@@ -122,7 +143,7 @@ class RotationUKFState:
     sigmas: np.ndarray | None = None
 
     def take(self, idx) -> "RotationUKFState":
-        return _take(self, idx)
+        return take_filters(self, idx)
 
 
 class RotationUKF:
@@ -132,14 +153,14 @@ class RotationUKF:
         if not dt > 0:
             raise ValueError(f"dt must be positive, got {dt}")
         self.dt = dt
-        self.q = _spd(process_cov, 6, "process_cov")  # Q^a = diag(Q^r, Q^ω) (A.9)
-        self.r = _spd(measurement_cov, 3, "measurement_cov")
+        self.q = spd_matrix(process_cov, 6, "process_cov")  # Q^a = diag(Q^r, Q^ω) (A.9)
+        self.r = spd_matrix(measurement_cov, 3, "measurement_cov")
         self.wm, self.wc, self.iota = params.weights(6)
 
     def init(self, quat: np.ndarray, omega: np.ndarray, cov) -> RotationUKFState:
         """Filters at ``quat (M, 4)``, ``omega (M, 3)`` with initial covariance ``cov (6, 6)``."""
         x = np.concatenate([np.zeros_like(omega, dtype=float), omega], axis=-1)
-        p = np.broadcast_to(_spd(cov, 6, "cov"), x.shape[:-1] + (6, 6)).copy()
+        p = np.broadcast_to(spd_matrix(cov, 6, "cov"), x.shape[:-1] + (6, 6)).copy()
         return RotationUKFState(quat_canonical(np.asarray(quat, float)), x, p)
 
     def propagate(self, q_ref: np.ndarray, sig: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -170,7 +191,7 @@ class RotationUKF:
         return quat_canonical(quat_multiply(s.q, quat_from_rodrigues(s.x[..., :3]))), s.x[..., 3:].copy()
 
 
-def _spd(a, n: int, name: str) -> np.ndarray:
+def spd_matrix(a, n: int, name: str) -> np.ndarray:
     """A symmetric positive-definite ``(n, n)`` matrix from a matrix or a diagonal."""
     a = np.asarray(a, dtype=float)
     if a.ndim == 1:
