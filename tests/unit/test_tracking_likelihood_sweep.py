@@ -17,7 +17,8 @@ def test_table_6_4_intervals_and_steps():
         (1, "rotation", "Z"), (2, "rotation", "X"), (3, "rotation", "Y"),
         (4, "translation", "Z"), (5, "translation", "Y"), (6, "translation", "X"),
     ]  # fmt: skip
-    for t, (lo, hi, step) in zip(tests, [(-180, 180, 1)] * 3 + [(3, 7, 0.01), (-0.24, 0.24, 0.01), (-0.74, 0.74, 0.01)]):
+    spans = [(-180, 180, 1)] * 3 + [(3, 7, 0.01), (-0.24, 0.24, 0.01), (-0.74, 0.74, 0.01)]
+    for t, (lo, hi, step) in zip(tests, spans):
         assert t.values[0] == pytest.approx(lo) and t.values[-1] == pytest.approx(hi)
         np.testing.assert_allclose(np.diff(t.values), step, atol=1e-9)
     assert table_6_4(10.0)[5].values[-1] == pytest.approx(1.48)  # scaled with the distance

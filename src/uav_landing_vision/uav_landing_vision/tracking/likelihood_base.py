@@ -61,7 +61,8 @@ def outline_points(masks: np.ndarray, boxes: np.ndarray):
     smooth = cv2.sepFilter2D(stacked, -1, _BINOMIAL, _BINOMIAL, borderType=cv2.BORDER_CONSTANT)
     flat = (owner * (t + 2 * p) + rows + p) * (t + 2 * p) + cols + p
     smooth = smooth.ravel()
-    grad = np.stack([smooth[flat - 1] - smooth[flat + 1], smooth[flat - (t + 2 * p)] - smooth[flat + (t + 2 * p)]], axis=1)
+    row = t + 2 * p
+    grad = np.stack([smooth[flat - 1] - smooth[flat + 1], smooth[flat - row] - smooth[flat + row]], axis=1)
     steps = np.array(_CRACKS, float)[d][:, ::-1]  # (dx, dy)
     length = np.linalg.norm(grad, axis=1, keepdims=True).astype(float)
     normals = np.where(length > 1e-6, grad / np.maximum(length, 1e-12), steps)
