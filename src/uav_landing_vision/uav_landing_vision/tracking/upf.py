@@ -1,0 +1,328 @@
+"""The tracker: Algorithm 3's tracking stage (the modified UPF) with the proposals C1–C5 of §5.2.
+
+Per frame (:meth:`Tracker.step`), with M particles of which M0 = M − boosted are carried over:
+
+1. **Mix** (Alg. 3, pose boosting step 4): the best M0 particles of t−1 and M − M0 boosted
+   hypotheses of frame t (all M from boosting at the first frame, after a loss, and always in C1).
+2. **Proposal** (§5.2): C1 uses the mix as is (5.2.1); C2 moves the carried particles by the
+   constant-velocity model (3.12) with random process noise (5.2.2); C3–C5 run one filter per
+   particle — UKF on translation and UKF (C3), UBiF (C4) or UBiGaF (C5) on rotation — predicted
+   from t−1, then updated with the measurement z_t, the pose of the mix's best-likelihood
+   particle (5.2.3–5.2.4). The carried filters are predicted before z_t is chosen, so z_t is
+   picked among poses of time t.
+3. **Weighting and resampling** (§5.4): one batched render + score, then the configured
+   App. B scheme back to M particles.
+4. **Pose optimisation** (§5.5): N iterations of the configured optimiser (PFO by default, with
+   the §6.7.1 noise). Filters are then recentred on the optimised poses.
+5. **Output**: the best particle (§6.7.1.2), a 6×6 covariance from the weighted particle cloud
+   (:func:`particle_covariance`), the track state (:mod:`.track_state`) and per-stage times.
+
+Everything is batched over particles; each likelihood evaluation is one ``Renderer.silhouettes``
+call. Random draws come from one Generator seeded by ``TrackerConfig.seed``.
+"""
+
+import re
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ..filters.motion import MotionFilterConfig
+from ..geometry import omega_quat, quat_multiply, quat_normalise
+from .likelihood import LIKELIHOODS, make_likelihood
+from .motion_bank import MotionBank
+from .optimisation import PFO, PSO, ConstrictedPSO, GAbF, PFOConfig, evaluate
+from .particles import ParticleSet
+from .resampling import RESAMPLERS, fixed_size, resample
+from .track_state import TrackMonitor, TrackState, TrackStateConfig
+
+ROTATION_FILTER = {"C3": "ukf", "C4": "ubif", "C5": "ubigaf"}  # Table 6.11
+COMBINATIONS = ("C1", "C2", "C3", "C4", "C5")
+OPTIMISERS = {"pfo": None, "pso": PSO, "constricted_pso": ConstrictedPSO, "gabf": GAbF}
+_VARIANT = re.compile(r"^C([1-5])N(\d+)$")
+
+
+def parse_variant(text: str) -> tuple[str, int]:
+    """``"C4N2"`` → ``("C4", 2)``: combination of Table 6.11 and PFO iterations N (§6.7.1.3)."""
+    match = _VARIANT.match(str(text).strip().upper())
+    if match is None:
+        raise ValueError(f"variant {text!r} is not of the form CxNy with x in 1..5 and y >= 0 (e.g. C4N2)")
+    return f"C{match.group(1)}", int(match.group(2))
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """The tracker's parameters (``config/tracker.yaml``, section ``tracker``); thesis defaults (§6.7.1).
+
+    ``motion.rotation_filter`` is set by ``variant`` (C3 ukf, C4 ubif, C5 ubigaf); C1 and C2 use
+    no filter (C2 uses ``motion``'s ``dt`` and process noise for its prediction).
+    """
+
+    variant: str = "C4"  # combination of Table 6.11
+    iterations: int = 2  # N, pose optimisation iterations per frame
+    particles: int = 100  # M
+    boosted: int = 25  # M − M0 hypotheses mixed in per frame (C2–C5)
+    metric: str = "colour"  # §5.4.1 likelihood
+    resampling: str = "reallocation"  # App. B scheme of the weighting step
+    optimiser: str = "pfo"  # pfo | pso | constricted_pso | gabf (the last three with thesis defaults)
+    seed: int = 0
+    tile: int = 64  # silhouette tile size (px) of the batched render
+    pfo: PFOConfig = field(default_factory=PFOConfig)
+    motion: MotionFilterConfig = field(default_factory=MotionFilterConfig)
+    track: TrackStateConfig = field(default_factory=TrackStateConfig)
+    covariance_floor_m: float = 0.05  # σ added to each translation variance
+    covariance_floor_deg: float = 1.0  # σ added to each rotation variance
+
+    def __post_init__(self):
+        if self.variant not in COMBINATIONS:
+            raise ValueError(f"variant must be one of {COMBINATIONS}, got {self.variant!r}")
+        if self.iterations < 0 or self.particles < 2 or not 1 <= self.boosted <= self.particles:
+            raise ValueError("need iterations N >= 0, particles M >= 2 and 1 <= boosted <= M")
+        if self.metric not in LIKELIHOODS:
+            raise ValueError(f"metric must be one of {sorted(LIKELIHOODS)}, got {self.metric!r}")
+        if self.resampling not in RESAMPLERS:
+            raise ValueError(f"resampling must be one of {sorted(RESAMPLERS)}, got {self.resampling!r}")
+        if self.optimiser not in OPTIMISERS:
+            raise ValueError(f"optimiser must be one of {sorted(OPTIMISERS)}, got {self.optimiser!r}")
+        if self.tile < 16 or not (self.covariance_floor_m >= 0 and self.covariance_floor_deg >= 0):
+            raise ValueError("need tile >= 16 and non-negative covariance floors")
+        if self.variant in ROTATION_FILTER:
+            object.__setattr__(self, "motion", replace(self.motion, rotation_filter=ROTATION_FILTER[self.variant]))
+
+    @classmethod
+    def from_variant(cls, name: str, **overrides) -> "TrackerConfig":
+        """The configuration of a ``CxNy`` variant, other fields from ``overrides``."""
+        combination, n = parse_variant(name)
+        return cls(variant=combination, iterations=n, **overrides)
+
+    @property
+    def name(self) -> str:
+        return f"{self.variant}N{self.iterations}"
+
+    @property
+    def uses_filters(self) -> bool:
+        return self.variant in ROTATION_FILTER
+
+
+STAGES = ("prepare", "proposal", "measurement", "filtering", "weighting", "resampling", "optimisation", "output")
+
+
+@dataclass(frozen=True)
+class TrackResult:
+    """One frame's output. ``position``/``quat``: UAV body in the camera optical frame (NaN when
+    there is no estimate). ``covariance``: 6×6, ROS order (x, y, z, rot_x, rot_y, rot_z); the
+    rotation part is of the small rotation r with ``q_particle = exp(r) ⊗ q_estimate``, i.e.
+    about the camera's fixed axes (as ``PoseWithCovariance`` expects), in rad²."""
+
+    stamp_ns: int
+    state: TrackState
+    position: np.ndarray
+    quat: np.ndarray
+    covariance: np.ndarray
+    best_likelihood: float
+    effective_particles: float
+    stage_ms: dict
+    particles: ParticleSet | None = None
+
+    @property
+    def has_pose(self) -> bool:
+        return bool(np.all(np.isfinite(self.position)))
+
+
+def constant_velocity_prediction(particles: ParticleSet, cfg: MotionFilterConfig,
+                                 rng: np.random.Generator) -> ParticleSet:
+    """C2's transition prior (§5.2.2): (3.12) ``p += v Δt``, ``q ← q ⊗ Ω(ω) ⊗ Ω(ξ)`` with Gaussian
+    disturbances of the motion configuration's process σ on p, v and ω."""
+    m, dt = len(particles), cfg.dt
+    pos = particles.pos + particles.vel * dt + rng.normal(size=(m, 3)) * cfg.position_process_std
+    vel = particles.vel + rng.normal(size=(m, 3)) * cfg.velocity_process_std
+    omega = particles.omega + rng.normal(size=(m, 3)) * cfg.omega_process_std
+    quat = quat_normalise(quat_multiply(particles.quat, omega_quat(omega, dt)))
+    return ParticleSet(pos, quat, vel, omega, particles.weight, particles.state)
+
+
+def particle_covariance(particles: ParticleSet, pos: np.ndarray, quat: np.ndarray,
+                        floor_m: float = 0.0, floor_rad: float = 0.0) -> np.ndarray:
+    """Weighted covariance (6×6, ROS order) of the particles about their weighted mean, in the
+    coordinates ``[p − pos, log(q ⊗ quat⁻¹)]``, plus ``floor²`` on the diagonal."""
+    w = particles.normalised_weights()
+    rot = (Rotation.from_quat(particles.quat) * Rotation.from_quat(quat).inv()).as_rotvec()
+    d = np.hstack([particles.pos - pos, rot])
+    dev = d - w @ d
+    cov = (dev * w[:, None]).T @ dev
+    return 0.5 * (cov + cov.T) + np.diag(np.repeat([floor_m**2, floor_rad**2], 3))
+
+
+def _optimiser(cfg: TrackerConfig):
+    return PFO(cfg.pfo) if cfg.optimiser == "pfo" else OPTIMISERS[cfg.optimiser]()
+
+
+class Tracker:
+    """The tracking core of the ``tracker`` node; one per process (it owns the renderer's use).
+
+    ``camera`` is the rectified camera; ``renderer`` may be shared (evaluation of several
+    variants), else one is made with the low-detail mesh.
+    """
+
+    def __init__(self, config: TrackerConfig, camera, renderer=None):
+        if renderer is None:
+            from ..model import fixed_wing_mesh
+            from ..render import Renderer
+
+            renderer = Renderer(camera, fixed_wing_mesh("low"), tile=config.tile, max_batch=max(512, config.particles))
+        if renderer.max_batch < config.particles:
+            raise ValueError(f"renderer max_batch {renderer.max_batch} < particles {config.particles}")
+        self.config = config
+        self.likelihood = make_likelihood(config.metric, renderer)
+        self.optimiser = _optimiser(config)
+        self.rng = np.random.default_rng(np.random.SeedSequence(config.seed))
+        self.monitor = TrackMonitor(config.track)
+        self.particles: ParticleSet | None = None  # the last frame's set, best first
+        self.filters = MotionBank(config.motion) if config.uses_filters else None
+        self._fresh: ParticleSet | None = None  # this frame's boosted particles
+
+    @property
+    def state(self) -> TrackState:
+        return self.monitor.state
+
+    def hypotheses_needed(self) -> int:
+        """How many boosted poses the next :meth:`step` uses: M when (re)initialising or in C1."""
+        if self.particles is None or self.config.variant == "C1":
+            return self.config.particles
+        return self.config.boosted
+
+    def reset(self) -> None:
+        """Forget the track (the next frame with hypotheses re-initialises it)."""
+        self.particles = None
+        self.monitor.lost()
+
+    def step(self, frame: np.ndarray, stamp_ns: int, hypotheses=None) -> TrackResult:
+        """Track one rectified RGB frame. ``hypotheses``: boosted poses, best first, with
+        ``quats (k, 4)`` and ``positions (k, 3)`` (e.g. :class:`boosting.Hypotheses`), or None."""
+        clock = _Clock()
+        self.likelihood.prepare(frame)
+        clock.lap("prepare")
+        new = _hypothesis_set(hypotheses, self.hypotheses_needed())
+        mixed = self._mix(new)
+        clock.lap("proposal")
+        if mixed is None:
+            self.reset()
+            return self._empty(stamp_ns, clock)
+        if self.filters is not None:
+            mixed = self._filter(mixed, clock)
+        w = evaluate(self.likelihood, mixed)
+        clock.lap("weighting")
+        particles = self._resample(mixed, w)
+        clock.lap("resampling")
+        if self.config.iterations > 0 and particles.weight.sum() > 0:
+            particles = self.optimiser.run(particles, self.likelihood, self.rng, self.config.iterations)
+        clock.lap("optimisation")
+        return self._output(particles, stamp_ns, clock)
+
+    # --- Algorithm 3 steps ----------------------------------------------------------------------
+
+    def _mix(self, new: ParticleSet | None) -> ParticleSet | None:
+        """Step 1: the best M0 carried particles (predicted) and the new boosted ones (Alg. 3)."""
+        cfg = self.config
+        self._fresh = new
+        if self.particles is None or cfg.variant == "C1":
+            if new is None:
+                return None
+            if self.particles is None:
+                self.monitor.initialised()
+            if self.filters is not None:
+                self.filters.clear()
+            return new
+        kept = self.particles.take(np.arange(min(len(self.particles), cfg.particles - (0 if new is None else len(new)))))
+        if self.filters is None:  # C2: transition prior (5.2.2)
+            kept = constant_velocity_prediction(kept, cfg.motion, self.rng)
+        else:  # C3-C5: the carried filters predicted to t (5.2.3)
+            self.filters.take(np.arange(len(kept)))
+            self.filters.predict()
+            pos, vel, quat, omega = self.filters.estimates()
+            kept = ParticleSet(pos, quat, vel, omega, kept.weight)
+        kept = ParticleSet(kept.pos, kept.quat, kept.vel, kept.omega, kept.weight)
+        return kept if new is None else ParticleSet.concat([kept, new])
+
+    def _filter(self, mixed: ParticleSet, clock) -> ParticleSet:
+        """Step 2 (C3–C5): z_t = best-likelihood pose of the mix; the carried filters are updated
+        with it. New boosted particles start a filter at their own pose: the thesis filters them
+        too, but pulling a fresh hypothesis towards another one discards its own evidence (a wrong
+        z_t would drag every new particle off, and the filter could not recover)."""
+        if len(self.filters):
+            w = evaluate(self.likelihood, mixed)
+            best = int(np.argmax(w))
+            clock.lap("measurement")
+            self.filters.update(mixed.pos[best], mixed.quat[best])
+        if self._fresh is not None:
+            fresh = MotionBank(self.config.motion)
+            fresh.init(self._fresh.pos, self._fresh.quat)
+            self.filters.extend(fresh)
+        pos, vel, quat, omega = self.filters.estimates()
+        clock.lap("filtering")
+        return ParticleSet(pos, quat, vel, omega, np.full(len(pos), 1.0 / len(pos)))
+
+    def _resample(self, particles: ParticleSet, w: np.ndarray) -> ParticleSet:
+        """Step 3: App. B resampling back to the set's size; ``slot`` names each copy's filter."""
+        particles = ParticleSet(particles.pos, particles.quat, particles.vel, particles.omega, particles.weight,
+                                {"slot": np.arange(len(particles))})
+        if not w.sum() > 0.0:
+            return particles.with_weight(w)
+        idx = fixed_size(resample(self.config.resampling, w, self.rng), w, self.rng, len(particles))
+        return particles.take(idx, weight=w[idx])
+
+    def _output(self, particles: ParticleSet, stamp_ns: int, clock) -> TrackResult:
+        """Step 5: best particle, covariance, track state; the set is kept best first."""
+        cfg = self.config
+        order = np.argsort(-particles.weight, kind="stable")
+        particles = particles.take(order)
+        best_w = float(particles.weight[0])
+        state = self.monitor.update(best_w)
+        if self.filters is not None:
+            self.filters.take(particles.state["slot"])
+            self.filters.recentre(particles.pos, particles.quat)
+            particles = ParticleSet(particles.pos, particles.quat, particles.vel, particles.omega, particles.weight,
+                                    {"slot": np.arange(len(particles))})
+        if state == TrackState.LOST:
+            self.reset()
+            return self._empty(stamp_ns, clock, best_w)
+        if best_w <= 0.0:  # nothing scored: carry the set on, no estimate this frame
+            self.particles = particles.with_weight(np.full(len(particles), 1.0 / len(particles)))
+            return self._empty(stamp_ns, clock, best_w)
+        self.particles = particles
+        pos, quat = particles.pos[0].copy(), particles.quat[0].copy()
+        cov = particle_covariance(particles, pos, quat, cfg.covariance_floor_m, np.radians(cfg.covariance_floor_deg))
+        n_eff = particles.effective_size()
+        clock.lap("output")
+        return TrackResult(stamp_ns, state, pos, quat, cov, best_w, n_eff, clock.ms, particles)
+
+    def _empty(self, stamp_ns: int, clock, best_w: float = 0.0) -> TrackResult:
+        clock.lap("output")
+        nan = np.full(3, np.nan)
+        return TrackResult(stamp_ns, self.state, nan, np.full(4, np.nan), np.full((6, 6), np.nan), best_w, 0.0,
+                           clock.ms)
+
+
+def _hypothesis_set(hypotheses, count: int) -> ParticleSet | None:
+    """The first ``count`` boosted poses as particles at rest, or None if there are none."""
+    if hypotheses is None:
+        return None
+    quats = np.asarray(hypotheses.quats, float)[:count]
+    pos = np.asarray(hypotheses.positions, float)[:count]
+    if len(quats) == 0:
+        return None
+    return ParticleSet.from_poses(pos, quat_normalise(quats))
+
+
+class _Clock:
+    """Milliseconds per stage of :data:`STAGES` (stages not run stay 0)."""
+
+    def __init__(self):
+        self.ms = dict.fromkeys(STAGES, 0.0)
+        self._last = time.perf_counter()
+
+    def lap(self, stage: str) -> None:
+        now = time.perf_counter()
+        self.ms[stage] += 1e3 * (now - self._last)
+        self._last = now
