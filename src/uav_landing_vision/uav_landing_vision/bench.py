@@ -8,8 +8,17 @@ def register(sub) -> None:
 
 
 def _run(args) -> int:
+    from .filters import benchmark as filter_benchmark
     from .render import benchmark as render_benchmark
+    from .tracking import likelihood_benchmark
 
+    if args.repeats < 1:
+        raise SystemExit("--repeats must be at least 1")
     print("Silhouette rendering (one instanced draw + readback per call):")
     print(render_benchmark.format_rows(render_benchmark.run(repeats=args.repeats)))
+    print("\nLikelihoods, M=100, tile 64, 1280x720 frame:")
+    print(likelihood_benchmark.format_result(likelihood_benchmark.run(repeats=args.repeats)))
+    print("\nMotion filters, one predict + update for a batch of 100:")
+    for name, ms in filter_benchmark.run(m=100, repeats=10 * args.repeats).items():
+        print(f"{name:>10} {ms:8.3f} ms")
     return 0
