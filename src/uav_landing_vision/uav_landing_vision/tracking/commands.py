@@ -2,6 +2,8 @@
 
 from pathlib import Path
 
+from . import evaluate_command
+
 _METRICS = ("colour", "contour", "distance_transform")
 
 
@@ -16,6 +18,7 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the background and sensor noise (default: 0)")
     p.add_argument("--tile", type=int, default=64, help="silhouette tile size in px (default: 64)")
     p.set_defaults(func=_run)
+    evaluate_command.register(sub)
 
 
 def _run(args) -> int:

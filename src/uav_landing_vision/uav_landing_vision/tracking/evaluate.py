@@ -14,7 +14,7 @@ A frame counts as lost (NaN error) when the tracker has no estimate or reports L
 """
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -87,8 +87,10 @@ class EvaluationResult:
 
 
 def evaluate_bag(bag, variants, *, particles: int = 100, metric: str = "colour", roi_source: str = "detector",
-                 frames: int | None = None, seed: int = 0, progress: bool = True) -> EvaluationResult:
-    """Run ``variants`` (``CxNy`` names) over the simulated ``bag``; see the module docstring."""
+                 frames: int | None = None, seed: int = 0, base: TrackerConfig | None = None,
+                 progress: bool = True) -> EvaluationResult:
+    """Run ``variants`` (``CxNy`` names) over the simulated ``bag``; see the module docstring.
+    Tracker settings other than variant, N, M, metric and seed come from ``base``."""
     from ..boosting import HypothesisConfig, PoseDatabase, PoseHypothesisGenerator
     from ..evaluation import pose_errors
     from ..model import fixed_wing_mesh
@@ -108,7 +110,9 @@ def evaluate_bag(bag, variants, *, particles: int = 100, metric: str = "colour",
     vertices = fixed_wing_mesh("high").vertices
     maps = raw_camera.undistortion_maps()
     database = PoseDatabase.load(model_path("pose_database.npz"), camera)
-    configs = {n: TrackerConfig.from_variant(n, particles=particles, metric=metric, seed=seed) for n in names}
+    base = TrackerConfig() if base is None else base
+    configs = {n: replace(base, variant=c, iterations=k, particles=particles, metric=metric, seed=seed)
+               for n, (c, k) in zip(names, map(parse_variant, names))}
     boost = PoseHypothesisGenerator(database, camera, HypothesisConfig(particles=particles,
                                                                        kept=particles - configs[names[0]].boosted))
     renderer = Renderer(camera, fixed_wing_mesh("low"), tile=configs[names[0]].tile, max_batch=max(512, particles))

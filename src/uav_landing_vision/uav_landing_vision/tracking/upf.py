@@ -130,6 +130,15 @@ class TrackResult:
         return bool(np.all(np.isfinite(self.position)))
 
 
+def load_tracker_config(path=None) -> TrackerConfig:
+    """The ``tracker`` section of a parameter file (default: the shipped ``config/tracker.yaml``)."""
+    from ..config import from_mapping, load_node_parameters
+    from ..resources import config_path
+
+    path = config_path("tracker.yaml") if path is None else path
+    return from_mapping(TrackerConfig, load_node_parameters(path, "tracker"), f"{path}: tracker")
+
+
 def constant_velocity_prediction(particles: ParticleSet, cfg: MotionFilterConfig,
                                  rng: np.random.Generator) -> ParticleSet:
     """C2's transition prior (§5.2.2): (3.12) ``p += v Δt``, ``q ← q ⊗ Ω(ω) ⊗ Ω(ξ)`` with Gaussian

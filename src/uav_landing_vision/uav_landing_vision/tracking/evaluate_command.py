@@ -1,0 +1,49 @@
+"""``uav-landing evaluate``: thesis-format tracking results of CxNy variants on a simulated bag (§6.7.1)."""
+
+from pathlib import Path
+
+DEFAULT_VARIANTS = "C1N0,C3N0,C4N0,C4N2,C5N5"
+
+
+def register(sub) -> None:
+    p = sub.add_parser("evaluate", help="run tracker variants (CxNy) over a simulated bag; thesis-format tables")
+    p.add_argument("--bag", type=Path, required=True, help="simulated rosbag2 folder (uav-landing simulate)")
+    p.add_argument("--variants", default=DEFAULT_VARIANTS,
+                   help=f"comma-separated CxNy: combination 1-5 of Table 6.11, N PFO iterations (default: {DEFAULT_VARIANTS})")
+    p.add_argument("--particles", type=int, default=100, help="particles M (default: 100)")
+    p.add_argument("--metric", choices=("colour", "contour", "distance_transform"), default="colour",
+                   help="likelihood metric (default: colour)")
+    p.add_argument("--roi-source", choices=("detector", "oracle"), default="detector",
+                   help="ROIs from the trained detector (default) or from the ground truth (oracle, labelled)")
+    p.add_argument("--frames", type=int, help="only the first N frames")
+    p.add_argument("--seed", type=int, default=0, help="tracker seed (default: 0)")
+    p.add_argument("--config", type=Path, help="tracker parameter file (default: the shipped config/tracker.yaml)")
+    p.add_argument("--json", type=Path, help="write the JSON summary here")
+    p.add_argument("--plots", type=Path, help="write tables (txt, CSV) and error plots into this folder")
+    p.set_defaults(func=_run)
+
+
+def _run(args) -> int:
+    from ..config import ConfigError
+    from ..evaluation import save_summary, write_report
+    from .evaluate import EvaluationError, evaluate_bag, format_results, parse_variants, sequence_label, summary
+    from .upf import load_tracker_config
+
+    try:
+        variants = parse_variants(args.variants)
+        if args.frames is not None and args.frames < 1:
+            raise ValueError("--frames must be at least 1")
+        base = load_tracker_config(args.config)
+        result = evaluate_bag(args.bag, variants, particles=args.particles, metric=args.metric,
+                              roi_source=args.roi_source, frames=args.frames, seed=args.seed, base=base)
+    except (ValueError, ConfigError, EvaluationError, FileNotFoundError) as exc:
+        raise SystemExit(f"evaluate: {exc}") from exc
+    print(format_results(result))
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        save_summary(args.json, summary(result))
+        print(f"wrote {args.json}")
+    if args.plots:
+        write_report(args.plots, sequence_label(result), result.errors)
+        print(f"wrote tables and plots to {args.plots.resolve()}/")
+    return 0
