@@ -1,0 +1,95 @@
+"""``uav-landing make-detection-data | train-detector | eval-detector``."""
+
+from pathlib import Path
+
+
+def _size(text: str) -> tuple[int, int]:
+    w, _, h = text.partition("x")
+    return int(w), int(h)
+
+
+def register(sub) -> None:
+    p = sub.add_parser("make-detection-data", help="generate the synthetic detection dataset (§4.2.2)")
+    p.add_argument("--out", type=Path, required=True, help="new dataset folder (under out/)")
+    p.add_argument("--count", type=int, default=1000, help="number of images (default: 1000)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--families", default="normal,complex", help="comma list of normal,complex,images,video")
+    p.add_argument("--images", default="", help="folder of user background images (family 'images')")
+    p.add_argument("--video", default="", help="video file or bag (family 'video')")
+    p.add_argument("--camera", default="camera.yaml", help="camera_info YAML (config/ name or path)")
+    p.set_defaults(func=_make_data)
+
+    p = sub.add_parser("train-detector", help="train the detector on the CPU and export it to ONNX")
+    p.add_argument("--data", type=Path, default=Path("out/detection_data"))
+    p.add_argument("--out", type=Path, default=Path("out/detector_train"), help="run folder (checkpoints, log)")
+    p.add_argument("--epochs", type=int, default=30)
+    p.add_argument("--batch", type=int, default=16)
+    p.add_argument("--lr", type=float, default=2e-3)
+    p.add_argument("--input", type=_size, default=(640, 384), help="letterbox WxH (default 640x384)")
+    p.add_argument("--width", type=int, default=48, help="network width (stride-8 channels)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--max-images", type=int, default=0, help="use the first N images only (0: all)")
+    p.add_argument("--resume", action="store_true", help="continue from OUT/last.pt")
+    p.add_argument("--export", type=Path, default=None, help="ONNX path (default: OUT/detector.onnx)")
+    p.set_defaults(func=_train)
+
+    p = sub.add_parser("eval-detector", help="precision-recall, AP50, recall by size and speed on a bag")
+    p.add_argument("--bag", type=Path, required=True, help="simulated rosbag2 folder with /uav/ground_truth")
+    p.add_argument("--json", type=Path, required=True, help="metrics JSON to write")
+    p.add_argument("--png", type=Path, default=None, help="PR curve PNG (default: next to the JSON)")
+    p.add_argument("--model", default="detector.onnx", help="shipped model name or path")
+    p.add_argument("--threshold", type=float, default=0.5, help="operating score threshold")
+    p.add_argument("--threads", type=int, default=2)
+    p.set_defaults(func=_evaluate)
+
+
+def _make_data(args) -> int:
+    from .dataset import DatasetConfig, generate
+
+    families = tuple(f.strip() for f in args.families.split(",") if f.strip())
+    try:
+        cfg = DatasetConfig(count=args.count, seed=args.seed, families=families, image_dir=args.images,
+                            video=args.video, camera_info=args.camera)
+        summary = generate(cfg, args.out)
+    except (ValueError, FileExistsError) as exc:
+        raise SystemExit(f"make-detection-data: {exc}") from None
+    print(f"wrote {summary['images']} images ({summary['positives']} with the UAV) to {args.out}")
+    return 0
+
+
+def _train(args) -> int:
+    import time
+
+    from .export import export_onnx
+    from .train import TrainConfig, load_trained, train
+
+    try:
+        cfg = TrainConfig(data=str(args.data), out=str(args.out), epochs=args.epochs, batch=args.batch,
+                          lr=args.lr, input_size=args.input, width=args.width, seed=args.seed,
+                          threads=args.threads, max_images=args.max_images)
+    except ValueError as exc:
+        raise SystemExit(f"train-detector: {exc}") from None
+    t0 = time.perf_counter()
+    log = train(cfg, resume=args.resume)
+    onnx_path = args.export or args.out / "detector.onnx"
+    last = log["epochs"][-1] if log["epochs"] else {}
+    description = (f"UavDetectorNet width {cfg.width}, input {cfg.input_size[0]}x{cfg.input_size[1]}, "
+                   f"{log['train_images']} training images, {len(log['epochs'])} epochs, "
+                   f"val AP50 {last.get('val_ap50', float('nan')):.3f}")
+    export_onnx(load_trained(cfg), onnx_path, cfg.input_size, description)
+    print(f"trained in {time.perf_counter() - t0:.0f} s; exported {onnx_path} ({description})")
+    return 0
+
+
+def _evaluate(args) -> int:
+    from .detector import DetectorConfig
+    from .evaluation import evaluate_bag
+
+    cfg = DetectorConfig(model=args.model, score_threshold=args.threshold, threads=args.threads)
+    png = args.png or args.json.with_suffix(".png")
+    r = evaluate_bag(args.bag, cfg, args.json, png)
+    print(f"AP50 {r['ap50']:.3f}  precision {r['precision']:.3f}  recall {r['recall']:.3f} at {r['threshold']}  "
+          f"FP/100 frames {r['false_positives_per_100_frames']:.1f}  median {r['ms_per_frame']:.1f} ms/frame")
+    print(f"wrote {args.json} and {png}")
+    return 0

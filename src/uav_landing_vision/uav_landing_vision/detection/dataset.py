@@ -1,0 +1,255 @@
+"""Synthetic detection dataset (§4.2.2): the UAV model rendered over backgrounds, YOLO labels.
+
+Each image: a background (the simulator's ``normal``/``complex`` skies and seas seen in a
+random direction at a random time, a random crop/flip of a user image, or a frame of a
+video), the UAV shaded at a random pose 5–150 m away (sometimes partly out of the frame, or
+absent: a negative), then photometric jitter, blur, noise and JPEG coding. The label comes
+from the rendered UAV exactly as Fig. 4.4: binarise its coverage → oriented box
+(:func:`..boosting.obb.obb_from_mask`) → axis-aligned ROI.
+
+Layout: ``images/NNNNNN.jpg``, ``labels/NNNNNN.txt`` (YOLO: ``0 cx cy w h`` normalised to the
+image, empty for a negative) and ``dataset.json`` (settings, counts). Image ``i`` depends only
+on ``(seed, i)`` and the settings.
+"""
+
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ..boosting.obb import Obb, obb_from_mask
+from ..geometry import euler_zyx_to_matrix, matrix_to_quat, quat_multiply, quat_normalise
+
+FAMILIES = ("normal", "complex", "images", "video")
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp")
+
+
+@dataclass(frozen=True)
+class DatasetConfig:
+    """Generator settings; ranges are [low, high]."""
+
+    count: int = 1000
+    seed: int = 0
+    camera_info: str = "camera.yaml"  # a config/ file name or a path; its rectified view is drawn
+    families: tuple[str, ...] = ("normal", "complex")  # "images"/"video" need image_dir/video
+    image_dir: str = ""
+    video: str = ""
+    banks_per_family: int = 3  # sky/sea panoramas (each with its own sun) per simulator family
+    range_m: tuple[float, float] = (5.0, 150.0)  # log-uniform
+    negative_fraction: float = 0.1
+    partial_fraction: float = 0.1  # UAV centre drawn up to 0.3 frame outside the image
+    coverage_threshold: float = 0.5  # binarisation of the rendered coverage
+    min_visible_px: int = 4
+    noise_sigma: tuple[float, float] = (0.0, 6.0)
+    blur_probability: float = 0.4
+    jpeg_quality: int = 92
+
+    def __post_init__(self):
+        unknown = set(self.families) - set(FAMILIES)
+        if not self.families or unknown:
+            raise ValueError(f"families must be a non-empty subset of {FAMILIES}, got {self.families}")
+        if "images" in self.families and not self.image_dir:
+            raise ValueError("the 'images' family needs image_dir")
+        if "video" in self.families and not self.video:
+            raise ValueError("the 'video' family needs video")
+        if self.count < 1 or self.banks_per_family < 1 or not 0 < self.range_m[0] < self.range_m[1]:
+            raise ValueError("need count ≥ 1, banks_per_family ≥ 1 and 0 < range_m[0] < range_m[1]")
+        if not (0 <= self.negative_fraction < 1 and 0 <= self.partial_fraction <= 1 and 0 < self.coverage_threshold < 1):
+            raise ValueError("negative_fraction in [0,1), partial_fraction in [0,1], coverage_threshold in (0,1)")
+
+
+def roi_from_obb(obb: Obb, width: int, height: int) -> np.ndarray | None:
+    """Axis-aligned ROI ``[x0,y0,x1,y1]`` (pixel edges, pixel u covers [u, u+1)) enclosing the
+    oriented box, clipped to the image; None if nothing is left."""
+    corners = cv2.boxPoints(((obb.x, obb.y), (obb.w, obb.h), obb.theta)) + 0.5
+    x0, y0 = np.maximum(corners.min(axis=0), 0.0)
+    x1, y1 = np.minimum(corners.max(axis=0), (width, height))
+    if x1 <= x0 or y1 <= y0:
+        return None
+    return np.array([x0, y0, x1, y1], dtype=np.float64)
+
+
+def annotate(coverage: np.ndarray, threshold: float = 0.5, min_pixels: int = 1) -> np.ndarray | None:
+    """Fig. 4.4: binarise the rendered UAV's coverage ``(H,W)`` → oriented box → ROI
+    ``[x0,y0,x1,y1]``; None if fewer than ``min_pixels`` pixels or a degenerate box."""
+    mask = np.asarray(coverage) >= threshold
+    if np.count_nonzero(mask) < min_pixels:
+        return None
+    obb = obb_from_mask(mask)
+    return None if obb is None else roi_from_obb(obb, mask.shape[1], mask.shape[0])
+
+
+def yolo_line(box: np.ndarray, width: int, height: int) -> str:
+    x0, y0, x1, y1 = box
+    return f"0 {(x0 + x1) / 2 / width:.6f} {(y0 + y1) / 2 / height:.6f} {(x1 - x0) / width:.6f} {(y1 - y0) / height:.6f}"
+
+
+def read_labels(path, width: int, height: int) -> np.ndarray:
+    """Boxes ``(N,4)`` ``[x0,y0,x1,y1]`` (pixels) of a YOLO label file."""
+    text = Path(path).read_text().strip()
+    rows = np.array([line.split() for line in text.splitlines()], dtype=np.float64).reshape(-1, 5)
+    cx, cy, w, h = rows[:, 1] * width, rows[:, 2] * height, rows[:, 3] * width, rows[:, 4] * height
+    return np.stack([cx - w / 2, cy - h / 2, cx + w / 2, cy + h / 2], axis=1)
+
+
+def image_rng(seed: int, index: int) -> np.random.Generator:
+    return np.random.default_rng(np.random.SeedSequence([seed, index]))
+
+
+# The UAV facing the camera, upright (body x → −z_C, body y → +x_C, body z → −y_C).
+_FACING = matrix_to_quat(np.array([[0.0, 1.0, 0.0], [0.0, 0.0, -1.0], [-1.0, 0.0, 0.0]]))
+# Camera body (x forward, y left, z up) from the optical frame (x right, y down, z forward).
+_BODY_FROM_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+
+
+def random_pose(rng: np.random.Generator, camera, cfg: DatasetConfig) -> tuple[np.ndarray, np.ndarray]:
+    """A UAV pose ``(quat, trans)`` in the camera frame: log-uniform range, centre in (or, for a
+    partial case, around) the image; 60 % landing-like attitudes, 40 % uniformly random."""
+    r = np.exp(rng.uniform(*np.log(cfg.range_m)))
+    margin = 0.3 if rng.random() < cfg.partial_fraction else 0.0
+    u = rng.uniform(-margin, 1 + margin) * camera.width
+    v = rng.uniform(-margin, 1 + margin) * camera.height
+    ray = np.array([(u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy, 1.0])
+    trans = r * ray / np.linalg.norm(ray)
+    if rng.random() < 0.6:
+        angles = np.radians(rng.uniform([-60, -30, -60], [60, 30, 60]))  # roll, pitch, yaw
+        quat = quat_multiply(matrix_to_quat(euler_zyx_to_matrix(angles)), _FACING)
+    else:
+        quat = quat_normalise(rng.standard_normal(4))
+    return quat, trans
+
+
+class BackgroundSource:
+    """Backgrounds of the configured families for one camera (panoramas built once)."""
+
+    def __init__(self, camera, cfg: DatasetConfig):
+        from ..sim.backgrounds import VideoBackground, make_background
+        from ..sim.config import BackgroundConfig, ShipConfig
+
+        self.camera, self.cfg, self.banks = camera, cfg, {}
+        for fam in ("normal", "complex"):
+            if fam in cfg.families:
+                seeds = np.random.SeedSequence([cfg.seed, 1 << 30, FAMILIES.index(fam)]).spawn(cfg.banks_per_family)
+                self.banks[fam] = [self._bank(fam, BackgroundConfig, ShipConfig, make_background, s) for s in seeds]
+        self.images = sorted(p for p in Path(cfg.image_dir).rglob("*") if p.suffix.lower() in IMAGE_SUFFIXES) \
+            if "images" in cfg.families else []
+        if "images" in cfg.families and not self.images:
+            raise ValueError(f"no images ({', '.join(IMAGE_SUFFIXES)}) under {cfg.image_dir!r}")
+        self.video = VideoBackground(camera, cfg.video) if "video" in cfg.families else None
+        self._video_index = -1
+
+    def _bank(self, fam, background_cfg, ship_cfg, make_background, seed):
+        rng = np.random.default_rng(seed)
+        az, el = rng.uniform(-180, 180), rng.uniform(5, 45) if fam == "normal" else rng.uniform(1, 12)
+        cfg = background_cfg(kind=fam, sun_azimuth_deg=float(az), sun_elevation_deg=float(el))
+        return make_background(cfg, self.camera, ship_cfg(), rng)
+
+    def draw(self, rng: np.random.Generator) -> np.ndarray:
+        """A background ``(H, W, 3)`` uint8 of a randomly chosen family."""
+        fam = self.cfg.families[rng.integers(len(self.cfg.families))]
+        if fam == "images":
+            return self._user_image(rng)
+        if fam == "video":  # footage is read in order; each draw takes the next frame
+            self._video_index += 1
+            return self.video.frame(self._video_index, 0.0)
+        bank = self.banks[fam][rng.integers(len(self.banks[fam]))]
+        bank.jitter_rng = rng  # sea jitter from this image's generator: image i depends on (seed, i) only
+        yaw, elev, roll = np.radians(rng.uniform([-180, -8, -10], [180, 30, 10]))
+        cam_rot = euler_zyx_to_matrix(np.array([roll, -elev, yaw])) @ _BODY_FROM_OPTICAL  # [roll, pitch, yaw]
+        return bank.frame(0, float(rng.uniform(0, 600)), cam_rot, np.array([0.0, 0.0, 0.5]))
+
+    def _user_image(self, rng: np.random.Generator) -> np.ndarray:
+        path = self.images[rng.integers(len(self.images))]
+        bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
+        if bgr is None:
+            raise ValueError(f"cannot read image {path}")
+        h, w = bgr.shape[:2]
+        aspect = self.camera.width / self.camera.height
+        cw = min(w, h * aspect) * rng.uniform(0.4, 1.0)
+        ch = cw / aspect
+        x0, y0 = rng.uniform(0, w - cw), rng.uniform(0, h - ch)
+        crop = bgr[int(y0) : int(y0 + ch), int(x0) : int(x0 + cw)]
+        if rng.random() < 0.5:
+            crop = crop[:, ::-1]
+        crop = cv2.resize(crop, (self.camera.width, self.camera.height), interpolation=cv2.INTER_AREA)
+        return cv2.cvtColor(crop, cv2.COLOR_BGR2RGB)
+
+
+def photometric(image: np.ndarray, rng: np.random.Generator, cfg: DatasetConfig) -> np.ndarray:
+    """Brightness/contrast/saturation/gamma jitter, optional Gaussian or motion blur, sensor noise."""
+    from ..sim.synthesis import motion_blur_kernel
+
+    img = image.astype(np.float32) / 255.0
+    grey = img.mean(axis=2, keepdims=True)
+    img = grey + rng.uniform(0.6, 1.4) * (img - grey)  # saturation
+    img = (img - 0.5) * rng.uniform(0.7, 1.3) + 0.5 + rng.uniform(-0.15, 0.15)  # contrast, brightness
+    img = np.clip(img, 0.0, 1.0) ** rng.uniform(0.7, 1.4)
+    if rng.random() < cfg.blur_probability:
+        if rng.random() < 0.5:
+            img = cv2.GaussianBlur(img, (0, 0), rng.uniform(0.4, 1.5))
+        else:
+            angle = rng.uniform(0, 2 * np.pi)
+            kernel = motion_blur_kernel(rng.uniform(1.5, 8.0) * np.array([np.cos(angle), np.sin(angle)]))
+            img = cv2.filter2D(img, -1, kernel, borderType=cv2.BORDER_REFLECT)
+    sigma = rng.uniform(*cfg.noise_sigma) / 255.0
+    img = img + rng.standard_normal(img.shape, dtype=np.float32) * np.float32(sigma)
+    return np.clip(img * 255.0 + 0.5, 0, 255).astype(np.uint8)
+
+
+class SampleGenerator:
+    """Makes image ``i`` of a dataset: ``(rgb uint8, ROI [x0,y0,x1,y1] or None)``."""
+
+    def __init__(self, cfg: DatasetConfig, mesh=None):
+        from ..camera import load_camera_info_yaml
+        from ..model import fixed_wing_mesh
+        from ..render import Renderer
+        from ..resources import config_path
+
+        path = Path(cfg.camera_info)
+        self.camera = load_camera_info_yaml(path if path.exists() else config_path(cfg.camera_info)).rectified()
+        self.cfg = cfg
+        self.renderer = Renderer(self.camera, mesh if mesh is not None else fixed_wing_mesh("high"))
+        self.backgrounds = BackgroundSource(self.camera, cfg)
+
+    def sample(self, index: int) -> tuple[np.ndarray, np.ndarray | None]:
+        cfg, rng = self.cfg, image_rng(self.cfg.seed, index)
+        image, box = self.backgrounds.draw(rng), None
+        if rng.random() >= cfg.negative_fraction:
+            albedo = np.clip(rng.uniform(0.15, 0.95) + rng.uniform(-0.05, 0.05, 3), 0, 1)
+            light = rng.standard_normal(3) + np.array([0.0, -1.0, 0.0])
+            for _ in range(20):  # redraw poses whose visible part is too small to label
+                quat, trans = random_pose(rng, self.camera, cfg)
+                rgb, alpha = self.renderer.shaded(quat, trans, image, albedo=tuple(albedo), light_dir=light)
+                box = annotate(alpha, cfg.coverage_threshold, cfg.min_visible_px)
+                if box is not None:
+                    image = rgb
+                    break
+        return photometric(image, rng, cfg), box
+
+
+def generate(cfg: DatasetConfig, out_dir, progress: bool = True) -> dict:
+    """Write the dataset to ``out_dir`` (which must not hold one yet); return its summary."""
+    from tqdm import tqdm
+
+    out = Path(out_dir)
+    if (out / "dataset.json").exists():
+        raise FileExistsError(f"{out} already holds a dataset; choose a new folder")
+    (out / "images").mkdir(parents=True, exist_ok=True)
+    (out / "labels").mkdir(parents=True, exist_ok=True)
+    gen = SampleGenerator(cfg)
+    w, h = gen.camera.width, gen.camera.height
+    positives, widths = 0, []
+    for i in tqdm(range(cfg.count), desc="detection data", unit="img", disable=not progress):
+        image, box = gen.sample(i)
+        cv2.imwrite(str(out / "images" / f"{i:06d}.jpg"), cv2.cvtColor(image, cv2.COLOR_RGB2BGR),
+                    [cv2.IMWRITE_JPEG_QUALITY, cfg.jpeg_quality])
+        (out / "labels" / f"{i:06d}.txt").write_text("" if box is None else yolo_line(box, w, h) + "\n")
+        if box is not None:
+            positives += 1
+            widths.append(box[2] - box[0])
+    summary = {"config": asdict(cfg), "width": w, "height": h, "images": cfg.count, "positives": positives,
+               "box_width_px_percentiles": np.percentile(widths, [0, 5, 50, 95, 100]).round(1).tolist() if widths else []}
+    (out / "dataset.json").write_text(json.dumps(summary, indent=2))
+    return summary

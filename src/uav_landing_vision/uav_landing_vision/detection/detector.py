@@ -1,0 +1,211 @@
+"""UAV detector runtime (§4.2): onnxruntime inference, letterbox, decode, threshold, NMS.
+
+Needs only numpy, OpenCV and onnxruntime. Frames are rectified RGB uint8 ``(H, W, 3)``.
+Boxes are ``[x0, y0, x1, y1]`` in continuous pixel coordinates where pixel (u, v) covers
+``[u, u+1) × [v, v+1)`` (so a box's edges are the ROI's edges; ``sensor_msgs/RegionOfInterest``
+is :meth:`Detections.rois`). The network's raw head maps and their decoding are described in
+:func:`decode` (same formula as :func:`.network.decode_torch`).
+"""
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import NamedTuple
+
+import cv2
+import numpy as np
+
+MAX_LOG_SIZE = 6.0  # = network.MAX_LOG_SIZE (the runtime does not import torch)
+PAD_VALUE = 114
+DEFAULT_MODEL = "detector.onnx"
+
+
+@dataclass(frozen=True)
+class DetectorConfig:
+    """Detector settings (``config/detector.yaml`` section ``detector``)."""
+
+    model: str = DEFAULT_MODEL  # a file of the shipped models/ folder, or a path
+    score_threshold: float = 0.5  # the operating threshold
+    nms_iou: float = 0.45
+    max_detections: int = 10
+    threads: int = 2  # onnxruntime intra-op threads
+    window_grow: float = 3.0  # search window side = this × the predicted ROI's larger side
+    window_min_px: int = 192  # ... and at least this
+
+    def __post_init__(self):
+        if not 0.0 < self.score_threshold < 1.0 or not 0.0 < self.nms_iou <= 1.0:
+            raise ValueError("score_threshold must be in (0, 1) and nms_iou in (0, 1]")
+        if self.max_detections < 1 or self.threads < 1 or self.window_grow < 1.0 or self.window_min_px < 32:
+            raise ValueError("need max_detections ≥ 1, threads ≥ 1, window_grow ≥ 1, window_min_px ≥ 32")
+
+
+class Detections(NamedTuple):
+    """``boxes (N,4)`` float32 ``[x0,y0,x1,y1]`` (full-image pixels) and ``scores (N,)``, best first."""
+
+    boxes: np.ndarray
+    scores: np.ndarray
+
+    def rois(self, width: int, height: int) -> np.ndarray:
+        """Integer ROIs ``(N,4)`` ``[x, y, w, h]`` covering the boxes, clipped to the image."""
+        x0 = np.clip(np.floor(self.boxes[:, 0]), 0, width - 1)
+        y0 = np.clip(np.floor(self.boxes[:, 1]), 0, height - 1)
+        x1 = np.clip(np.ceil(self.boxes[:, 2]), x0 + 1, width)
+        y1 = np.clip(np.ceil(self.boxes[:, 3]), y0 + 1, height)
+        return np.stack([x0, y0, x1 - x0, y1 - y0], axis=1).astype(np.int64)
+
+
+class Letterbox(NamedTuple):
+    """Image → network input mapping: ``x_in = scale · x_img + pad_x`` (same for y)."""
+
+    scale: float
+    pad_x: int
+    pad_y: int
+
+    def to_image(self, boxes: np.ndarray) -> np.ndarray:
+        """Boxes ``(N,4)`` from network-input to image pixels."""
+        pad = np.array([self.pad_x, self.pad_y, self.pad_x, self.pad_y], np.float32)
+        return (np.asarray(boxes, np.float32) - pad) / np.float32(self.scale)
+
+    def to_input(self, boxes: np.ndarray) -> np.ndarray:
+        """Boxes ``(N,4)`` from image to network-input pixels."""
+        pad = np.array([self.pad_x, self.pad_y, self.pad_x, self.pad_y], np.float32)
+        return np.asarray(boxes, np.float32) * np.float32(self.scale) + pad
+
+
+def check_image(image) -> np.ndarray:
+    """The frame as a contiguous uint8 ``(H, W, 3)`` array, or a ValueError saying what is wrong."""
+    if not isinstance(image, np.ndarray):
+        raise ValueError(f"image must be a numpy array, got {type(image).__name__}")
+    if image.dtype != np.uint8:
+        raise ValueError(f"image must be uint8 RGB, got dtype {image.dtype}")
+    if image.ndim != 3 or image.shape[2] != 3:
+        raise ValueError(f"image must be (H, W, 3) RGB, got shape {image.shape}")
+    if image.shape[0] == 0 or image.shape[1] == 0:
+        raise ValueError(f"image is empty: shape {image.shape}")
+    return np.ascontiguousarray(image)
+
+
+def letterbox(image: np.ndarray, size: tuple[int, int], multiple: int = 32,
+              max_scale: float = 1.0) -> tuple[np.ndarray, Letterbox]:
+    """Resize ``image`` to fit in ``size`` = (width, height) keeping its aspect (scale ≤
+    ``max_scale``), centre it and pad with grey to the next multiple of ``multiple``."""
+    h, w = image.shape[:2]
+    scale = min(size[0] / w, size[1] / h, max_scale)
+    nw, nh = max(1, round(w * scale)), max(1, round(h * scale))
+    pw, ph = -(-nw // multiple) * multiple, -(-nh // multiple) * multiple
+    interp = cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR
+    resized = image if (nw, nh) == (w, h) else cv2.resize(image, (nw, nh), interpolation=interp)
+    px, py = (pw - nw) // 2, (ph - nh) // 2
+    out = cv2.copyMakeBorder(resized, py, ph - nh - py, px, pw - nw - px, cv2.BORDER_CONSTANT,
+                             value=(PAD_VALUE,) * image.shape[2] if image.ndim == 3 else PAD_VALUE)
+    return out, Letterbox(scale, px, py)
+
+
+def _sigmoid(x: np.ndarray) -> np.ndarray:
+    return 1.0 / (1.0 + np.exp(-x))
+
+
+def decode(raw: np.ndarray, stride: int, threshold: float) -> tuple[np.ndarray, np.ndarray]:
+    """Boxes ``(K,4)`` (input pixels) and scores ``(K,)`` of the cells of one head map
+    ``raw (5, H, W)`` = ``[logit, tx, ty, tw, th]`` whose score σ(logit) ≥ ``threshold``.
+
+    Cell (i, j) → centre ``((j+½+tx)·s, (i+½+ty)·s)``, size ``(s·e^tw, s·e^th)``.
+    """
+    raw = np.asarray(raw, np.float32)
+    if raw.ndim != 3 or raw.shape[0] != 5:
+        raise ValueError(f"head output must be (5, H, W), got {raw.shape}")
+    scores = _sigmoid(raw[0])
+    i, j = np.nonzero(scores >= threshold)
+    t = raw[:, i, j]
+    cx = (j + 0.5 + t[1]) * stride
+    cy = (i + 0.5 + t[2]) * stride
+    bw = stride * np.exp(np.clip(t[3], -MAX_LOG_SIZE, MAX_LOG_SIZE))
+    bh = stride * np.exp(np.clip(t[4], -MAX_LOG_SIZE, MAX_LOG_SIZE))
+    boxes = np.stack([cx - bw / 2, cy - bh / 2, cx + bw / 2, cy + bh / 2], axis=1).astype(np.float32)
+    return boxes, scores[i, j].astype(np.float32)
+
+
+def box_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """IoU matrix ``(len(a), len(b))`` of ``[x0,y0,x1,y1]`` boxes."""
+    a, b = np.asarray(a, np.float64).reshape(-1, 4), np.asarray(b, np.float64).reshape(-1, 4)
+    lt = np.maximum(a[:, None, :2], b[None, :, :2])
+    rb = np.minimum(a[:, None, 2:], b[None, :, 2:])
+    inter = np.prod(np.clip(rb - lt, 0, None), axis=2)
+    area_a = np.prod(np.clip(a[:, 2:] - a[:, :2], 0, None), axis=1)
+    area_b = np.prod(np.clip(b[:, 2:] - b[:, :2], 0, None), axis=1)
+    union = area_a[:, None] + area_b[None, :] - inter
+    return np.divide(inter, union, out=np.zeros_like(inter), where=union > 0)
+
+
+def nms(boxes: np.ndarray, scores: np.ndarray, iou: float, limit: int | None = None) -> np.ndarray:
+    """Indices kept by greedy non-maximum suppression, best score first (ties: lower index first)."""
+    order = np.argsort(-np.asarray(scores), kind="stable")
+    keep = []
+    while order.size and (limit is None or len(keep) < limit):
+        best, order = order[0], order[1:]
+        keep.append(best)
+        order = order[box_iou(boxes[best], boxes[order])[0] <= iou]
+    return np.array(keep, dtype=np.int64)
+
+
+def search_window(roi, width: int, height: int, grow: float, min_px: int) -> tuple[int, int, int, int]:
+    """Square-ish window ``(x, y, w, h)`` around a predicted ROI ``(x, y, w, h)``, inside the image."""
+    x, y, w, h = (float(v) for v in roi)
+    side = max(grow * max(w, h), float(min_px))
+    ww, wh = min(round(side), width), min(round(side), height)
+    x0 = int(np.clip(round(x + w / 2 - ww / 2), 0, width - ww))
+    y0 = int(np.clip(round(y + h / 2 - wh / 2), 0, height - wh))
+    return x0, y0, ww, wh
+
+
+class Detector:
+    """The ONNX detector; one onnxruntime session, reused for every frame."""
+
+    def __init__(self, config: DetectorConfig = DetectorConfig()):
+        import onnxruntime as ort
+
+        self.config = config
+        path = Path(config.model)
+        if not path.exists():
+            from ..resources import model_path
+
+            path = model_path(config.model)
+        options = ort.SessionOptions()
+        options.intra_op_num_threads = config.threads
+        options.inter_op_num_threads = 1
+        self.session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+        meta = self.session.get_modelmeta().custom_metadata_map
+        try:
+            self.strides = tuple(int(s) for s in json.loads(meta["strides"]))
+            self.input_size = (int(meta["input_width"]), int(meta["input_height"]))
+        except (KeyError, ValueError) as exc:
+            raise ValueError(f"{path}: not a detector exported by this project (metadata {exc})") from exc
+        self.input_name = self.session.get_inputs()[0].name
+
+    def detect(self, image: np.ndarray, window=None) -> Detections:
+        """Detections in a rectified RGB frame; with ``window`` ``(x, y, w, h)`` only in that
+        region (searched at up to full resolution, so a small window is fast)."""
+        image = check_image(image)
+        ox = oy = 0
+        max_scale = 1.0
+        if window is not None:
+            from ..boosting.obb import check_roi
+
+            ox, oy, ww, wh = check_roi(window, image.shape[1], image.shape[0])
+            image = image[oy : oy + wh, ox : ox + ww]
+        else:
+            max_scale = min(self.input_size[0] / image.shape[1], self.input_size[1] / image.shape[0])
+        boxes, scores = self._infer(image, max_scale)
+        boxes += np.array([ox, oy, ox, oy], np.float32)
+        return Detections(boxes, scores)
+
+    def _infer(self, image: np.ndarray, max_scale: float) -> tuple[np.ndarray, np.ndarray]:
+        cfg = self.config
+        padded, lb = letterbox(image, self.input_size, max(self.strides), max_scale)
+        blob = np.ascontiguousarray(padded.transpose(2, 0, 1)[None], np.float32) * np.float32(1 / 255)
+        outputs = self.session.run(None, {self.input_name: blob})
+        parts = [decode(out[0], s, cfg.score_threshold) for out, s in zip(outputs, self.strides)]
+        boxes = np.concatenate([p[0] for p in parts])
+        scores = np.concatenate([p[1] for p in parts])
+        keep = nms(boxes, scores, cfg.nms_iou, cfg.max_detections)
+        return lb.to_image(boxes[keep]).reshape(-1, 4), scores[keep]

@@ -1,0 +1,141 @@
+"""Detector evaluation (§6.3.2): precision–recall curve, AP at IoU 0.5, recall by UAV size, speed.
+
+The ground-truth ROI of each frame comes from the bag's ground-truth pose: the model is
+rendered at that pose in the rectified camera and labelled as in Fig. 4.4 (binarise →
+oriented box → axis-aligned ROI, :func:`.dataset.annotate`). Frames are undistorted first,
+as the node graph does before detection.
+"""
+
+import json
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .detector import box_iou
+
+WIDTH_BUCKETS = (0, 8, 16, 32, 64, 128, 256, 100000)  # px edges of the GT-width buckets
+
+
+def match_frame(boxes: np.ndarray, scores: np.ndarray, gt: np.ndarray, iou: float = 0.5):
+    """Greedy matching of one frame's detections (best score first) to its ground-truth boxes:
+    ``(tp (N,) bool per detection, matched (G,) bool per GT box)``."""
+    boxes, gt = np.asarray(boxes).reshape(-1, 4), np.asarray(gt).reshape(-1, 4)
+    tp, matched = np.zeros(len(boxes), bool), np.zeros(len(gt), bool)
+    if len(boxes) and len(gt):
+        ious = box_iou(boxes, gt)
+        for d in np.argsort(-np.asarray(scores), kind="stable"):
+            free = np.where(matched, -1.0, ious[d])
+            g = int(np.argmax(free))
+            if free[g] >= iou:
+                tp[d], matched[g] = True, True
+    return tp, matched
+
+
+def average_precision(scores: np.ndarray, tp: np.ndarray, n_gt: int):
+    """Area under the all-point interpolated PR curve: ``(ap, precision, recall, thresholds)``."""
+    order = np.argsort(-np.asarray(scores), kind="stable")
+    tp = np.asarray(tp, bool)[order]
+    ctp, cfp = np.cumsum(tp), np.cumsum(~tp)
+    recall = ctp / max(n_gt, 1)
+    precision = ctp / np.maximum(ctp + cfp, 1)
+    envelope = np.maximum.accumulate(precision[::-1])[::-1] if len(precision) else precision
+    steps = np.diff(np.concatenate([[0.0], recall]))
+    return float(np.sum(steps * envelope)) if n_gt else 0.0, precision, recall, np.asarray(scores)[order]
+
+
+def summarise(frames: list[dict], threshold: float) -> dict:
+    """Metrics of per-frame results ``{"boxes", "scores", "gt", "ms"}`` (boxes scored down to a
+    low threshold, so the whole curve is seen)."""
+    scores, tps, widths, hits = [], [], [], []
+    fp_at, tp_at = 0, 0
+    for f in frames:
+        tp, _ = match_frame(f["boxes"], f["scores"], f["gt"])
+        scores.append(f["scores"])
+        tps.append(tp)
+        keep = f["scores"] >= threshold
+        _, matched = match_frame(f["boxes"][keep], f["scores"][keep], f["gt"])
+        fp_at += int(keep.sum() - matched.sum())
+        tp_at += int(matched.sum())
+        widths.extend((f["gt"][:, 2] - f["gt"][:, 0]).tolist())
+        hits.extend(matched.tolist())
+    n_gt = len(widths)
+    ap, precision, recall, thr = average_precision(np.concatenate(scores), np.concatenate(tps), n_gt)
+    widths, hits = np.array(widths), np.array(hits, bool)
+    by_width = {}
+    for lo, hi in zip(WIDTH_BUCKETS[:-1], WIDTH_BUCKETS[1:]):
+        sel = (widths >= lo) & (widths < hi)
+        if sel.any():
+            by_width[f"{lo}-{hi}" if hi < WIDTH_BUCKETS[-1] else f"{lo}+"] = {
+                "recall": float(hits[sel].mean()), "count": int(sel.sum())}
+    return {
+        "ap50": ap,
+        "threshold": threshold,
+        "precision": tp_at / max(tp_at + fp_at, 1),
+        "recall": tp_at / max(n_gt, 1),
+        "false_positives_per_100_frames": 100.0 * fp_at / max(len(frames), 1),
+        "recall_by_width_px": by_width,
+        "recall_wider_than_16px": float(hits[widths > 16].mean()) if np.any(widths > 16) else None,
+        "frames": len(frames),
+        "ground_truth_boxes": n_gt,
+        "ms_per_frame": float(np.median([f["ms"] for f in frames])) if frames else None,
+        "curve": {"precision": precision.tolist(), "recall": recall.tolist(), "thresholds": thr.tolist()},
+    }
+
+
+def plot_pr(result: dict, path, title: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5, 4.5))
+    ax.plot(result["curve"]["recall"], result["curve"]["precision"], lw=1.5)
+    ax.set(xlim=(0, 1.01), ylim=(0, 1.01), xlabel="recall", ylabel="precision",
+           title=f"{title}  AP50 = {result['ap50']:.3f}")
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def evaluate_bag(bag, config, json_path, png_path=None, progress: bool = True) -> dict:
+    """Run the detector (``config``: :class:`.detector.DetectorConfig`, its threshold the operating
+    point) over a simulated bag; write the metrics JSON (and PR curve PNG)."""
+    from dataclasses import replace
+
+    from tqdm import tqdm
+
+    from ..model import fixed_wing_mesh
+    from ..render import Renderer
+    from ..sim.bag import iter_frames, read_camera, read_poses
+    from .dataset import annotate
+    from .detector import Detector
+
+    camera = read_camera(bag)
+    rect = camera.rectified()
+    map1, map2 = camera.undistortion_maps()
+    poses = read_poses(bag)
+    truth = {int(s): (q, t) for s, q, t in zip(poses.stamps_ns, poses.quat, poses.trans)}
+    renderer = Renderer(rect, fixed_wing_mesh("high"))
+    detector = Detector(replace(config, score_threshold=0.01, max_detections=20))
+    frames = []
+    for stamp, raw in tqdm(iter_frames(bag), desc="eval-detector", unit="frame", total=len(truth),
+                           disable=not progress):
+        if stamp not in truth:
+            raise ValueError(f"{bag}: frame {stamp} has no ground-truth pose")
+        image = cv2.remap(raw, map1, map2, cv2.INTER_LINEAR)
+        box = annotate(renderer.silhouette_full(*truth[stamp]).astype(np.float32))
+        t0 = time.perf_counter()
+        det = detector.detect(image)
+        ms = 1000.0 * (time.perf_counter() - t0)
+        frames.append({"boxes": det.boxes, "scores": det.scores, "ms": ms,
+                       "gt": np.zeros((0, 4)) if box is None else box[None]})
+    result = summarise(frames, config.score_threshold)
+    result.update(bag=str(bag), model=str(config.model))
+    Path(json_path).parent.mkdir(parents=True, exist_ok=True)
+    Path(json_path).write_text(json.dumps({k: v for k, v in result.items() if k != "curve"}, indent=2))
+    if png_path:
+        plot_pr(result, png_path, Path(str(bag)).name)
+    return result

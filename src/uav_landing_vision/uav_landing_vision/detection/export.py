@@ -1,0 +1,41 @@
+"""ONNX export of the detector network (torch; development only).
+
+The graph has one input ``images`` (N,3,H,W) float32 RGB in [0,1] with dynamic H and W
+(multiples of 32) and one output per stride (``p8``, ``p16``, ``p32``). Metadata props carry
+what the runtime needs: ``strides``, ``input_width``, ``input_height`` (the full-frame
+letterbox size) and a free-form ``description``.
+"""
+
+import json
+from pathlib import Path
+
+import torch
+
+from .network import STRIDES
+
+OPSET = 18
+
+
+def export_onnx(net: torch.nn.Module, path, input_size: tuple[int, int], description: str = "") -> Path:
+    """Write ``net`` (eval mode) as ONNX to ``path``; ``input_size`` is (width, height)."""
+    import onnx
+
+    width, height = input_size
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    net = net.eval()
+    example = torch.zeros(1, 3, height, width)
+    h, w = torch.export.Dim("h32", min=1, max=64), torch.export.Dim("w32", min=1, max=64)
+    torch.onnx.export(
+        net, (example,), str(path), dynamo=True, opset_version=OPSET, external_data=False,
+        input_names=["images"], output_names=[f"p{s}" for s in STRIDES],
+        dynamic_shapes={"x": {2: 32 * h, 3: 32 * w}}, verbose=False,
+    )
+    model = onnx.load(str(path))
+    meta = {"strides": json.dumps(list(STRIDES)), "input_width": str(width), "input_height": str(height),
+            "description": description}
+    for key, value in meta.items():
+        prop = model.metadata_props.add()
+        prop.key, prop.value = key, value
+    onnx.save(model, str(path))
+    return path

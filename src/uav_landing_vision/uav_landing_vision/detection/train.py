@@ -1,0 +1,227 @@
+"""Detector training on the CPU (torch; development only): targets, loss, resumable loop, export.
+
+Targets: a UAV box goes to one head by its larger side in network-input pixels (stride 8
+below 48 px, 16 below 144 px, else 32); its positive cells are the cell holding its centre
+and those of the 3×3 neighbourhood whose centres fall inside the box. Loss: sigmoid focal
+loss on objectness (all cells) + GIoU on the positives, both per positive. Every epoch
+writes ``last.pt`` (network, optimiser, scheduler, RNG states) so ``--resume`` continues
+bit for bit; the validation split (every 10th image) gives AP50 after each epoch.
+"""
+
+import json
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+from torch.nn import functional as F
+
+from .dataset import read_labels
+from .detector import decode, letterbox, nms
+from .evaluation import average_precision, match_frame
+from .network import STRIDES, UavDetectorNet, decode_torch
+
+LEVEL_LIMITS = (48.0, 144.0)  # larger box side (input px) separating the stride 8/16/32 heads
+VAL_EVERY = 10  # image i is validation when i % VAL_EVERY == 0
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    data: str = "out/detection_data"
+    out: str = "out/detector_train"
+    epochs: int = 30
+    batch: int = 16
+    lr: float = 2e-3
+    weight_decay: float = 5e-4
+    input_size: tuple[int, int] = (640, 384)  # (width, height) of the full-frame letterbox
+    width: int = 48
+    seed: int = 0
+    threads: int = 2
+    max_images: int = 0  # use only the first N images (0: all)
+
+    def __post_init__(self):
+        if self.epochs < 1 or self.batch < 1 or self.lr <= 0 or self.width < 8 or self.threads < 1:
+            raise ValueError("need epochs ≥ 1, batch ≥ 1, lr > 0, width ≥ 8, threads ≥ 1")
+        if any(s % max(STRIDES) for s in self.input_size):
+            raise ValueError(f"input_size sides must be multiples of {max(STRIDES)}, got {self.input_size}")
+
+
+class LetterboxedImages(torch.utils.data.Dataset):
+    """Images of a generated dataset, letterboxed to the input size; random horizontal flip."""
+
+    def __init__(self, root, indices, input_size, seed: int, augment: bool):
+        meta = json.loads((Path(root) / "dataset.json").read_text())
+        self.root, self.indices, self.input_size = Path(root), list(indices), input_size
+        self.size = (meta["width"], meta["height"])
+        self.seed, self.augment, self.epoch = seed, augment, 0
+
+    def __len__(self):
+        return len(self.indices)
+
+    def __getitem__(self, k):
+        i = self.indices[k]
+        bgr = cv2.imread(str(self.root / "images" / f"{i:06d}.jpg"), cv2.IMREAD_COLOR)
+        if bgr is None:
+            raise FileNotFoundError(f"cannot read image {i} of {self.root}")
+        img, lb = letterbox(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), self.input_size)
+        boxes = lb.to_input(read_labels(self.root / "labels" / f"{i:06d}.txt", *self.size))
+        rng = np.random.default_rng(np.random.SeedSequence([self.seed, self.epoch, i]))
+        if self.augment and rng.random() < 0.5:
+            img = img[:, ::-1]
+            boxes = np.stack([img.shape[1] - boxes[:, 2], boxes[:, 1], img.shape[1] - boxes[:, 0], boxes[:, 3]], 1)
+        tensor = torch.from_numpy(np.ascontiguousarray(img.transpose(2, 0, 1))).float().div_(255.0)
+        return tensor, torch.from_numpy(boxes.astype(np.float32)).reshape(-1, 4)
+
+
+def collate(batch):
+    return torch.stack([b[0] for b in batch]), [b[1] for b in batch]
+
+
+def build_targets(boxes_per_image, height: int, width: int):
+    """Per stride: positive mask (B,h,w) bool and target boxes (B,h,w,4) in input pixels."""
+    out = []
+    for stride in STRIDES:
+        h, w = height // stride, width // stride
+        pos = torch.zeros(len(boxes_per_image), h, w, dtype=torch.bool)
+        target = torch.zeros(len(boxes_per_image), h, w, 4)
+        out.append((pos, target, stride))
+    for b, boxes in enumerate(boxes_per_image):
+        # Larger boxes first, so a smaller one that shares a cell wins it.
+        order = torch.argsort(-(boxes[:, 2:] - boxes[:, :2]).prod(1)) if len(boxes) else []
+        for box in boxes[order] if len(boxes) else []:
+            side = float((box[2:] - box[:2]).max())
+            pos, target, stride = out[int(side >= LEVEL_LIMITS[0]) + int(side >= LEVEL_LIMITS[1])]
+            h, w = pos.shape[1:]
+            cx, cy = float(box[0] + box[2]) / 2, float(box[1] + box[3]) / 2
+            ci, cj = min(max(int(cy // stride), 0), h - 1), min(max(int(cx // stride), 0), w - 1)
+            for i in range(max(ci - 1, 0), min(ci + 2, h)):
+                for j in range(max(cj - 1, 0), min(cj + 2, w)):
+                    mx, my = (j + 0.5) * stride, (i + 0.5) * stride
+                    inside = box[0] < mx < box[2] and box[1] < my < box[3]
+                    if (i, j) == (ci, cj) or inside:
+                        pos[b, i, j] = True
+                        target[b, i, j] = box
+    return out
+
+
+def giou_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """1 − GIoU of matching ``[x0,y0,x1,y1]`` boxes (N,4)."""
+    lt, rb = torch.maximum(pred[:, :2], target[:, :2]), torch.minimum(pred[:, 2:], target[:, 2:])
+    inter = (rb - lt).clamp(min=0).prod(1)
+    area_p, area_t = (pred[:, 2:] - pred[:, :2]).prod(1), (target[:, 2:] - target[:, :2]).prod(1)
+    union = area_p + area_t - inter + 1e-7
+    hull = (torch.maximum(pred[:, 2:], target[:, 2:]) - torch.minimum(pred[:, :2], target[:, :2])).prod(1) + 1e-7
+    return 1.0 - inter / union + (hull - union) / hull
+
+
+def detection_loss(outputs, targets, alpha: float = 0.25, gamma: float = 2.0):
+    """(total, objectness, box) losses, each normalised by the number of positive cells."""
+    obj_loss, box_loss, n_pos = 0.0, 0.0, 0
+    for raw, (pos, target, stride) in zip(outputs, targets):
+        logits, boxes = decode_torch(raw, stride)
+        y = pos.float()
+        p = torch.sigmoid(logits)
+        ce = F.binary_cross_entropy_with_logits(logits, y, reduction="none")
+        p_t = p * y + (1 - p) * (1 - y)
+        obj_loss = obj_loss + ((alpha * y + (1 - alpha) * (1 - y)) * (1 - p_t) ** gamma * ce).sum()
+        if pos.any():
+            box_loss = box_loss + giou_loss(boxes[pos], target[pos]).sum()
+        n_pos += int(pos.sum())
+    n = max(n_pos, 1)
+    obj_loss, box_loss = obj_loss / n, box_loss / n
+    return obj_loss + 2.0 * box_loss, obj_loss, box_loss
+
+
+def validate(net, loader, threshold: float = 0.01) -> float:
+    """AP50 of the network on a loader (numpy decode + NMS, as the runtime)."""
+    net.eval()
+    scores, tps, n_gt = [], [], 0
+    with torch.no_grad():
+        for images, boxes in loader:
+            outputs = [o.numpy() for o in net(images)]
+            for b, gt in enumerate(boxes):
+                parts = [decode(o[b], s, threshold) for o, s in zip(outputs, STRIDES)]
+                pb, ps = np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
+                keep = nms(pb, ps, 0.45, 10)
+                tp, _ = match_frame(pb[keep], ps[keep], gt.numpy())
+                scores.append(ps[keep])
+                tps.append(tp)
+                n_gt += len(gt)
+    net.train()
+    return average_precision(np.concatenate(scores), np.concatenate(tps), n_gt)[0] if scores else 0.0
+
+
+def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict:
+    """Train (or continue training) into ``cfg.out``; returns the training log."""
+    from tqdm import tqdm
+
+    out = Path(cfg.out)
+    out.mkdir(parents=True, exist_ok=True)
+    torch.manual_seed(cfg.seed)
+    torch.set_num_threads(cfg.threads)
+    meta = json.loads((Path(cfg.data) / "dataset.json").read_text())
+    count = meta["images"] if cfg.max_images <= 0 else min(cfg.max_images, meta["images"])
+    val_idx = [i for i in range(count) if i % VAL_EVERY == 0]
+    train_idx = [i for i in range(count) if i % VAL_EVERY != 0]
+    train_set = LetterboxedImages(cfg.data, train_idx, cfg.input_size, cfg.seed, augment=True)
+    val_set = LetterboxedImages(cfg.data, val_idx, cfg.input_size, cfg.seed, augment=False)
+    shuffle = torch.Generator().manual_seed(cfg.seed)
+    train_loader = torch.utils.data.DataLoader(train_set, cfg.batch, shuffle=True, generator=shuffle,
+                                               collate_fn=collate, drop_last=len(train_set) > cfg.batch)
+    val_loader = torch.utils.data.DataLoader(val_set, cfg.batch, collate_fn=collate)
+
+    net = UavDetectorNet(cfg.width)
+    optim = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    sched = torch.optim.lr_scheduler.OneCycleLR(optim, cfg.lr, total_steps=cfg.epochs * len(train_loader),
+                                                pct_start=0.1)
+    log = {"config": asdict(cfg), "train_images": len(train_idx), "val_images": len(val_idx), "epochs": []}
+    start_epoch, ckpt = 0, out / "last.pt"
+    if resume:
+        if not ckpt.exists():
+            raise FileNotFoundError(f"--resume: no checkpoint {ckpt}")
+        state = torch.load(ckpt, weights_only=False)
+        if state["config"] != asdict(cfg):
+            raise ValueError(f"--resume: {ckpt} was made with other settings: {state['config']}")
+        net.load_state_dict(state["net"])
+        optim.load_state_dict(state["optim"])
+        sched.load_state_dict(state["sched"])
+        shuffle.set_state(state["shuffle_rng"])
+        torch.set_rng_state(state["torch_rng"])
+        start_epoch, log = state["epoch"] + 1, state["log"]
+
+    net.train()
+    for epoch in range(start_epoch, cfg.epochs):
+        train_set.epoch = epoch
+        t0, totals, n = time.perf_counter(), np.zeros(3), 0
+        bar = tqdm(train_loader, desc=f"epoch {epoch + 1}/{cfg.epochs}", unit="batch", disable=not progress)
+        for images, boxes in bar:
+            targets = build_targets(boxes, images.shape[2], images.shape[3])
+            loss, obj, box = detection_loss(net(images), targets)
+            optim.zero_grad(set_to_none=True)
+            loss.backward()
+            optim.step()
+            sched.step()
+            totals += [float(loss), float(obj), float(box)]
+            n += 1
+            bar.set_postfix(loss=f"{totals[0] / n:.3f}")
+        seconds = time.perf_counter() - t0
+        ap50 = validate(net, val_loader)
+        log["epochs"].append({"epoch": epoch + 1, "loss": totals[0] / max(n, 1), "obj": totals[1] / max(n, 1),
+                              "box": totals[2] / max(n, 1), "val_ap50": ap50, "seconds": seconds,
+                              "images_per_s": len(train_set) / seconds})
+        print(json.dumps(log["epochs"][-1]))
+        torch.save({"config": asdict(cfg), "epoch": epoch, "net": net.state_dict(), "optim": optim.state_dict(),
+                    "sched": sched.state_dict(), "shuffle_rng": shuffle.get_state(),
+                    "torch_rng": torch.get_rng_state(), "log": log}, out / "last.tmp")
+        (out / "last.tmp").replace(ckpt)
+    (out / "train_log.json").write_text(json.dumps(log, indent=2))
+    return log
+
+
+def load_trained(cfg: TrainConfig) -> UavDetectorNet:
+    """The network of the run's last checkpoint."""
+    net = UavDetectorNet(cfg.width)
+    net.load_state_dict(torch.load(Path(cfg.out) / "last.pt", weights_only=False)["net"])
+    return net.eval()

@@ -1,0 +1,62 @@
+"""Detection dataset: Fig. 4.4 annotation (binarise → oriented box → ROI), YOLO labels, determinism."""
+
+import numpy as np
+import pytest
+
+from uav_landing_vision.camera import CameraModel, save_camera_info_yaml
+from uav_landing_vision.detection.dataset import DatasetConfig, annotate, generate, read_labels, yolo_line
+
+
+def test_annotation_of_an_upright_rectangle_is_its_pixel_extent():
+    coverage = np.zeros((80, 100), np.float32)
+    coverage[30:34, 20:30] = 0.9
+    coverage[50, 50] = 0.4  # below the binarisation threshold
+    np.testing.assert_allclose(annotate(coverage), [20, 30, 30, 34], atol=1e-4)
+
+
+def test_annotation_of_a_diagonal_is_the_roi_of_its_oriented_box():
+    # Pixels (i, i), i = 10..19: the oriented box lies along 45°, 14.14 × 1.41 px; its corners
+    # reach half a pixel beyond the tight axis-aligned box [10, 10, 20, 20] on every side.
+    coverage = np.zeros((40, 40), np.float32)
+    idx = np.arange(10, 20)
+    coverage[idx, idx] = 1.0
+    np.testing.assert_allclose(annotate(coverage), [9.5, 9.5, 20.5, 20.5], atol=1e-3)
+
+
+def test_annotation_is_clipped_to_the_image_and_empty_masks_give_none():
+    coverage = np.zeros((40, 60), np.float32)
+    coverage[0:5, 50:60] = 1.0
+    np.testing.assert_allclose(annotate(coverage), [50, 0, 60, 5], atol=1e-4)
+    assert annotate(np.zeros((40, 60), np.float32)) is None
+    assert annotate(coverage, min_pixels=51) is None
+
+
+def test_yolo_label_round_trip(tmp_path):
+    box = np.array([100.25, 50.5, 140.75, 66.0])
+    (tmp_path / "l.txt").write_text(yolo_line(box, 1280, 720) + "\n")
+    np.testing.assert_allclose(read_labels(tmp_path / "l.txt", 1280, 720), [box], atol=1e-3)
+    (tmp_path / "empty.txt").write_text("")
+    assert read_labels(tmp_path / "empty.txt", 1280, 720).shape == (0, 4)
+
+
+def test_config_rejects_missing_sources():
+    with pytest.raises(ValueError, match="image_dir"):
+        DatasetConfig(families=("normal", "images"))
+    with pytest.raises(ValueError, match="families"):
+        DatasetConfig(families=("sunset",))
+
+
+def test_dataset_is_deterministic_by_seed(tmp_path):
+    camera = CameraModel(192, 108, np.array([[165.0, 0, 96.0], [0, 165.0, 54.0], [0, 0, 1]]))
+    save_camera_info_yaml(camera, tmp_path / "cam.yaml")
+    cfg = DatasetConfig(count=4, seed=7, camera_info=str(tmp_path / "cam.yaml"), families=("normal",),
+                        banks_per_family=1, negative_fraction=0.25)
+    first = generate(cfg, tmp_path / "a", progress=False)
+    generate(cfg, tmp_path / "b", progress=False)
+    assert first["width"] == 192 and first["images"] == 4 and first["positives"] >= 1
+    for sub, pattern in (("images", "*.jpg"), ("labels", "*.txt")):
+        a, b = sorted((tmp_path / "a" / sub).glob(pattern)), sorted((tmp_path / "b" / sub).glob(pattern))
+        assert len(a) == 4 and [p.name for p in a] == [p.name for p in b]
+        assert all(x.read_bytes() == y.read_bytes() for x, y in zip(a, b))
+    with pytest.raises(FileExistsError):
+        generate(cfg, tmp_path / "a", progress=False)

@@ -1,0 +1,95 @@
+"""Detector runtime on hand-made cases: letterbox, decode, NMS, ROIs, search window, bad input."""
+
+import numpy as np
+import pytest
+
+from uav_landing_vision.detection.detector import (
+    PAD_VALUE,
+    Detections,
+    box_iou,
+    check_image,
+    decode,
+    letterbox,
+    nms,
+    search_window,
+)
+
+
+def test_letterbox_full_frame_shapes_and_padding():
+    image = np.full((720, 1280, 3), 200, np.uint8)
+    out, lb = letterbox(image, (640, 384))
+    assert out.shape == (384, 640, 3)
+    assert (lb.scale, lb.pad_x, lb.pad_y) == (0.5, 0, 12)
+    assert np.all(out[:12] == PAD_VALUE) and np.all(out[372:] == PAD_VALUE)
+    assert np.all(out[12:372] == 200)
+
+
+def test_letterbox_small_image_is_not_upscaled_and_is_centred():
+    image = np.zeros((300, 100, 3), np.uint8)
+    out, lb = letterbox(image, (640, 384))
+    assert out.shape == (320, 128, 3)
+    assert (lb.scale, lb.pad_x, lb.pad_y) == (1.0, 14, 10)
+    assert np.all(out[10:310, 14:114] == 0) and np.all(out[:, :14] == PAD_VALUE)
+
+
+def test_letterbox_box_round_trip():
+    _, lb = letterbox(np.zeros((720, 1280, 3), np.uint8), (640, 384))
+    boxes = np.array([[100.0, 50.0, 116.0, 58.0], [0.0, 0.0, 1280.0, 720.0]])
+    np.testing.assert_allclose(lb.to_input(boxes), [[50, 37, 58, 41], [0, 12, 640, 372]])
+    np.testing.assert_allclose(lb.to_image(lb.to_input(boxes)), boxes, atol=1e-4)
+
+
+def test_decode_hand_made_head_map():
+    raw = np.full((5, 2, 3), -10.0, np.float32)
+    raw[1:, :, :] = 0.0
+    raw[:, 1, 2] = [4.0, 0.25, -0.5, np.log(2.0), 0.0]
+    boxes, scores = decode(raw, 8, 0.5)
+    np.testing.assert_allclose(boxes, [[14.0, 4.0, 30.0, 12.0]], atol=1e-5)
+    np.testing.assert_allclose(scores, [1 / (1 + np.exp(-4.0))], rtol=1e-6)
+    assert decode(raw, 8, 0.99)[0].shape == (0, 4)
+
+
+def test_decode_rejects_wrong_shape():
+    with pytest.raises(ValueError, match=r"\(5, H, W\)"):
+        decode(np.zeros((4, 2, 2)), 8, 0.5)
+
+
+def test_box_iou_hand_made():
+    a = np.array([[0, 0, 10, 10]])
+    b = np.array([[5, 0, 15, 10], [20, 20, 30, 30], [0, 0, 10, 10]])
+    np.testing.assert_allclose(box_iou(a, b), [[50 / 150, 0.0, 1.0]])
+
+
+def test_nms_keeps_best_of_each_overlapping_group():
+    boxes = np.array([[0, 0, 10, 10], [1, 1, 11, 11], [20, 20, 30, 30], [0, 0, 10, 10.5]], np.float32)
+    scores = np.array([0.9, 0.8, 0.7, 0.95], np.float32)
+    assert nms(boxes, scores, 0.45).tolist() == [3, 2]
+    assert nms(boxes, scores, 0.45, limit=1).tolist() == [3]
+    assert nms(boxes, scores, 0.9).tolist() == [3, 1, 2]  # B overlaps D by IoU 0.715 < 0.9
+    assert nms(boxes[:0], scores[:0], 0.45).tolist() == []
+
+
+def test_rois_cover_boxes_and_are_clipped():
+    det = Detections(np.array([[10.2, 5.7, 30.1, 20.0], [-4.0, 700.0, 20.0, 730.0]], np.float32), np.ones(2))
+    assert det.rois(1280, 720).tolist() == [[10, 5, 21, 15], [0, 700, 20, 20]]
+
+
+def test_search_window_centred_and_kept_inside():
+    assert search_window((600, 300, 20, 10), 1280, 720, 3.0, 192) == (514, 209, 192, 192)
+    assert search_window((1270, 700, 10, 10), 1280, 720, 3.0, 192) == (1088, 528, 192, 192)
+    assert search_window((0, 0, 400, 300), 1280, 720, 3.0, 192) == (0, 0, 1200, 720)
+
+
+@pytest.mark.parametrize(
+    "image, message",
+    [
+        (np.zeros((10, 10, 3), np.float32), "uint8"),
+        (np.zeros((10, 10), np.uint8), r"\(H, W, 3\)"),
+        (np.zeros((10, 10, 4), np.uint8), r"\(H, W, 3\)"),
+        (np.zeros((0, 10, 3), np.uint8), "empty"),
+        ([[1, 2, 3]], "numpy array"),
+    ],
+)
+def test_bad_images_are_rejected_with_a_clear_error(image, message):
+    with pytest.raises(ValueError, match=message):
+        check_image(image)

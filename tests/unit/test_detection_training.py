@@ -1,0 +1,125 @@
+"""Training targets and loss, evaluation metrics, and a fresh network exported to ONNX and run
+through the runtime."""
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from uav_landing_vision.detection.detector import Detector, DetectorConfig, decode, letterbox  # noqa: E402
+from uav_landing_vision.detection.evaluation import average_precision, match_frame, summarise  # noqa: E402
+from uav_landing_vision.detection.export import export_onnx  # noqa: E402
+from uav_landing_vision.detection.network import STRIDES, UavDetectorNet, decode_torch  # noqa: E402
+from uav_landing_vision.detection.train import build_targets, detection_loss, giou_loss  # noqa: E402
+
+
+def _positives(targets):
+    return [sorted(map(tuple, torch.nonzero(pos[0]).tolist())) for pos, _, _ in targets]
+
+
+def test_targets_pick_the_head_by_size_and_the_cells_inside_the_box():
+    small = build_targets([torch.tensor([[10.0, 10.0, 20.0, 14.0]])], 64, 64)
+    assert _positives(small) == [[(1, 1)], [], []]
+    medium = build_targets([torch.tensor([[0.0, 0.0, 40.0, 40.0]])], 64, 64)
+    assert _positives(medium)[0] == [(i, j) for i in (1, 2, 3) for j in (1, 2, 3)]
+    large = build_targets([torch.tensor([[0.0, 0.0, 100.0, 60.0]])], 128, 128)
+    assert _positives(large)[0] == [] and (1, 3) in _positives(large)[1] and _positives(large)[2] == []
+    pos, target, _ = medium[0]
+    np.testing.assert_allclose(target[0, 2, 2].numpy(), [0, 0, 40, 40])
+    assert all(not p.any() for p, _, _ in build_targets([torch.zeros((0, 4))], 64, 64))
+
+
+def test_giou_loss_hand_made():
+    a = torch.tensor([[0.0, 0.0, 10.0, 10.0], [0.0, 0.0, 10.0, 10.0]])
+    b = torch.tensor([[0.0, 0.0, 10.0, 10.0], [20.0, 0.0, 30.0, 10.0]])
+    # Disjoint: IoU 0, hull 300, union 200 → 1 − 0 + 100/300.
+    np.testing.assert_allclose(giou_loss(a, b).numpy(), [0.0, 1 + 1 / 3], atol=1e-5)
+
+
+def test_loss_decreases_on_a_tiny_batch():
+    torch.manual_seed(0)
+    images = torch.full((2, 3, 64, 96), 0.5)
+    images[0, :, 20:28, 30:46] = 0.1
+    images[1, :, 40:52, 60:70] = 0.9
+    boxes = [torch.tensor([[30.0, 20.0, 46.0, 28.0]]), torch.tensor([[60.0, 40.0, 70.0, 52.0]])]
+    targets = build_targets(boxes, 64, 96)
+    net = UavDetectorNet(width=16, blocks=(1, 1, 1))
+    optim = torch.optim.Adam(net.parameters(), lr=5e-3)
+    losses = []
+    for _ in range(12):
+        loss, _, _ = detection_loss(net(images), targets)
+        optim.zero_grad()
+        loss.backward()
+        optim.step()
+        losses.append(loss.item())
+    assert losses[-1] < 0.5 * losses[0]
+
+
+def test_average_precision_hand_made():
+    ap, precision, recall, _ = average_precision(np.array([0.9, 0.8, 0.7, 0.6]), np.array([1, 0, 1, 0], bool), 3)
+    np.testing.assert_allclose(precision, [1, 0.5, 2 / 3, 0.5])
+    np.testing.assert_allclose(recall, [1 / 3, 1 / 3, 2 / 3, 2 / 3])
+    assert ap == pytest.approx(1 / 3 + 2 / 9)
+
+
+def test_matching_and_summary_hand_made():
+    gt = np.array([[100.0, 100.0, 120.0, 110.0]])
+    tp, matched = match_frame(np.array([[101.0, 100.0, 121.0, 110.0], [100.0, 100.0, 120.0, 110.0]]),
+                              np.array([0.6, 0.9]), gt)
+    assert tp.tolist() == [False, True] and matched.tolist() == [True]
+    frames = [
+        {"boxes": np.array([[100.0, 100.0, 120.0, 110.0]]), "scores": np.array([0.9]), "gt": gt, "ms": 10.0},
+        {"boxes": np.array([[0.0, 0.0, 30.0, 30.0]]), "scores": np.array([0.7]), "gt": np.zeros((0, 4)), "ms": 12.0},
+        {"boxes": np.zeros((0, 4)), "scores": np.zeros(0), "gt": np.array([[0.0, 0.0, 10.0, 5.0]]), "ms": 30.0},
+        {"boxes": np.array([[5.0, 5.0, 9.0, 9.0]]), "scores": np.array([0.3]), "gt": np.zeros((0, 4)), "ms": 11.0},
+    ]
+    r = summarise(frames, threshold=0.5)
+    assert r["ap50"] == pytest.approx(0.5)
+    assert (r["precision"], r["recall"]) == (0.5, 0.5)
+    assert r["false_positives_per_100_frames"] == 25.0
+    assert r["recall_by_width_px"] == {"8-16": {"recall": 0.0, "count": 1}, "16-32": {"recall": 1.0, "count": 1}}
+    assert r["recall_wider_than_16px"] == 1.0 and r["ms_per_frame"] == 11.5
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory):
+    """A fresh small network, its stride-8 head made to score every cell σ(5) with the cell's
+    own box (the other heads keep their initial weights), exported to ONNX."""
+    torch.manual_seed(0)
+    net = UavDetectorNet(width=16, blocks=(1, 1, 1)).eval()
+    with torch.no_grad():
+        net.heads[0].pred.weight.zero_()
+        net.heads[0].pred.bias.copy_(torch.tensor([5.0, 0.0, 0.0, 0.0, 0.0]))
+    return net, export_onnx(net, tmp_path_factory.mktemp("onnx") / "det.onnx", (640, 384), "test")
+
+
+def test_exported_network_matches_torch_and_decodes_alike(exported):
+    import onnxruntime as ort
+
+    net, path = exported
+    x = torch.rand(1, 3, 96, 160)
+    session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    onnx_out = session.run(None, {"images": x.numpy()})
+    with torch.no_grad():
+        torch_out = net(x)
+    for o, t, s in zip(onnx_out, torch_out, STRIDES):
+        np.testing.assert_allclose(o, t.numpy(), atol=1e-4)
+        logits, boxes = decode_torch(t, s)
+        nb, ns = decode(o[0], s, 0.0)
+        np.testing.assert_allclose(nb, boxes[0].reshape(-1, 4).numpy(), rtol=1e-4, atol=1e-3)
+        np.testing.assert_allclose(ns, torch.sigmoid(logits[0]).reshape(-1).numpy(), atol=1e-5)
+
+
+def test_runtime_on_the_exported_model(exported):
+    _, path = exported
+    det = Detector(DetectorConfig(model=str(path), max_detections=5, threads=1))
+    assert det.strides == STRIDES and det.input_size == (640, 384)
+    frame = np.zeros((720, 1280, 3), np.uint8)
+    result = det.detect(frame)
+    assert len(result.boxes) == 5 and np.all(result.scores == pytest.approx(1 / (1 + np.exp(-5.0))))
+    _, lb = letterbox(frame, (640, 384))
+    np.testing.assert_allclose(result.boxes[0], lb.to_image(np.array([[0, 0, 8, 8]]))[0])  # first cell
+    windowed = det.detect(frame, window=(100, 200, 192, 192))
+    np.testing.assert_allclose(windowed.boxes[0], [100, 200, 108, 208])  # full resolution in the window
+    with pytest.raises(ValueError, match="uint8"):
+        det.detect(frame.astype(np.float32))
