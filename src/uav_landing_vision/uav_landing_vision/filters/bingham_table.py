@@ -99,8 +99,10 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.grid_size < 8 or not args.z_max > 0:
         parser.error("need --grid-size >= 8 and --z-max > 0")
-    table = build(args.grid_size, args.z_max)
-    np.savez_compressed(args.output, **{k: np.asarray(a, dtype=np.float32) for k, a in table.items()})
+    table = {k: np.asarray(a, dtype=np.float32) for k, a in build(args.grid_size, args.z_max).items()}
+    made_by = "python -m uav_landing_vision.filters.bingham_table OUTPUT"
+    made_by += f" --grid-size {args.grid_size} --z-max {args.z_max:g}"
+    np.savez_compressed(args.output, made_by=np.array(made_by), **table)
     print(f"wrote {args.output}: {args.grid_size}³ grid, |z| ≤ {args.z_max:g}")
     return 0
 

@@ -11,7 +11,7 @@ import numpy as np
 
 from ..geometry import omega_quat, quat_canonical, quat_conjugate, quat_multiply
 from . import bingham
-from .ukf import spd_matrix, take_filters
+from .ukf import kalman_update, spd_matrix, take_filters, unscented_moments
 
 N_SIGMA = 13  # 2r + 2s + 1 with r = s = 3 (Appendix E)
 
@@ -78,9 +78,8 @@ def tangent_coordinates(q_ref: np.ndarray, x: np.ndarray) -> np.ndarray:
 
 def bingham_gauss_moments(q, w, weights):
     """``m_ω`` (E.19), ``P_ω`` (E.20), ``P_q`` (E.21), ``P_qω`` (E.22) of weighted sigma points."""
-    m_w = (weights[..., None, :] @ w)[..., 0, :]
+    m_w, p_w = unscented_moments(w, weights, weights)
     dw = w - m_w[..., None, :]
-    p_w = bingham.weighted_outer(weights, dw, dw)
     p_q = bingham.weighted_outer(weights, q, q)
     p_qw = bingham.weighted_outer(weights, q, dw)
     return m_w, p_w, p_q, p_qw
@@ -108,7 +107,11 @@ class UBiGaF:
         return UBiGaFState(quat, np.asarray(omega, float).copy(), p_w, p_q, np.zeros(shape + (4, 3)))
 
     def sigma_points(self, q_ref, m_w, p_w, p_q, p_qw):
-        """Sigma points (E.16)–(E.17) of the Bingham–Gauss state, in the hemisphere of ``q_ref``."""
+        """Sigma points (E.16)–(E.17) of the Bingham–Gauss state, in the hemisphere of ``q_ref``.
+
+        The Euclidean part is scaled by the root of the conditional covariance
+        ``P_ω − P_qωᵀ P_q⁻¹ P_qω`` of (C.11) (E.17 prints ``+``, which would not reproduce ``P_ω``).
+        """
         f, m = np.linalg.eigh(p_q)
         f = np.maximum(f, 1e-15)
         m = m * np.where(np.sum(m[..., :, 3] * q_ref, axis=-1) < 0, -1.0, 1.0)[..., None, None]
@@ -145,21 +148,12 @@ class UBiGaF:
         else:
             sig_q, sig_w, weights = s.sig_q, s.sig_w, s.weights
         d = tangent_coordinates(s.q[..., None, :], sig_q)
-        z_mean = (weights[..., None, :] @ d)[..., 0, :]  # step 1 (A.23)
-        dz = d - z_mean[..., None, :]
-        p_zz = bingham.weighted_outer(weights, dz, dz)  # step 2 (A.24)
-        nu = tangent_coordinates(s.q, np.asarray(meas, float)) - z_mean  # step 3 (A.25)
-        spread = bingham.compose_covariance(s.p_q, self.measurement_cov) - s.p_q
-        p_nn = p_zz + bingham.tangent_covariance(s.q, spread)  # step 4: Cov(ν ⊗ Λ) (C.7)
         r_sig = np.concatenate([d, sig_w], axis=-1)
-        r_mean = (weights[..., None, :] @ r_sig)[..., 0, :]
-        dr = r_sig - r_mean[..., None, :]
-        p_rr = bingham.weighted_outer(weights, dr, dr)
-        p_rz = bingham.weighted_outer(weights, dr, dz)  # step 5 (A.27)
-        gain = np.swapaxes(np.linalg.solve(p_nn, np.swapaxes(p_rz, -1, -2)), -1, -2)  # step 6 (A.28)
-        r = r_mean + np.einsum("...ij,...j->...i", gain, nu)  # step 7 (A.29)
-        p_r = p_rr - gain @ p_nn @ np.swapaxes(gain, -1, -2)  # (A.30)
-        p_r = 0.5 * (p_r + np.swapaxes(p_r, -1, -2))
+        r_mean, p_rr = unscented_moments(r_sig, weights, weights)
+        # Step 4: Cov(ν ⊗ Λ) (C.7) is P_zz plus the spread the composition with Λ adds.
+        noise = bingham.tangent_covariance(s.q, bingham.compose_covariance(s.p_q, self.measurement_cov) - s.p_q)
+        z = tangent_coordinates(s.q, np.asarray(meas, float))
+        r, p_r = kalman_update(r_sig, r_mean, p_rr, d, z, noise, weights, weights)  # steps 1–7 (A.23)–(A.30)
         half = r[..., :3] / 2.0
         scale = np.maximum(1.0, np.linalg.norm(half, axis=-1, keepdims=True))
         vec = half / scale

@@ -55,18 +55,28 @@ def sigma_points(x: np.ndarray, p: np.ndarray, iota: float) -> np.ndarray:
 
 
 def unscented_moments(points: np.ndarray, wm: np.ndarray, wc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Weighted mean (A.16) and covariance (A.19)–(A.20) of sigma points ``(..., k, n)``."""
-    mean = wm @ points
-    dev = points - mean[..., None, :]
-    return mean, np.swapaxes(dev * wc[:, None], -1, -2) @ dev
+    """Weighted mean (A.16) and covariance (A.19)–(A.20) of sigma points ``(..., k, n)``.
+
+    The weights are ``(k,)`` or one set per filter, ``(..., k)``.
+    """
+    mean = (wm[..., None, :] @ points)[..., 0, :]
+    return mean, _cross(points - mean[..., None, :], points - mean[..., None, :], wc)
+
+
+def _cross(dx: np.ndarray, dz: np.ndarray, wc: np.ndarray) -> np.ndarray:
+    """``Σ_k wc_k dx_k dz_kᵀ``."""
+    return np.swapaxes(dx * wc[..., :, None], -1, -2) @ dz
 
 
 def kalman_update(x_sig, x_mean, p_xx, z_sig, z, r, wm, wc):
-    """Measurement update (A.23)–(A.30); returns the posterior mean and covariance."""
+    """Measurement update (A.23)–(A.30); returns the posterior mean and covariance.
+
+    ``r`` is the measurement noise added to ``P_zz`` in (A.26), fixed or one per filter.
+    """
     z_mean, p_zz = unscented_moments(z_sig, wm, wc)  # (A.23), (A.24)
     nu = z - z_mean  # (A.25)
     p_nn = p_zz + r  # (A.26)
-    p_xz = np.swapaxes((x_sig - x_mean[..., None, :]) * wc[:, None], -1, -2) @ (z_sig - z_mean[..., None, :])  # (A.27)
+    p_xz = _cross(x_sig - x_mean[..., None, :], z_sig - z_mean[..., None, :], wc)  # (A.27)
     gain = np.swapaxes(np.linalg.solve(p_nn, np.swapaxes(p_xz, -1, -2)), -1, -2)  # (A.28)
     x = x_mean + np.einsum("...ij,...j->...i", gain, nu)  # (A.29)
     p = p_xx - gain @ p_nn @ np.swapaxes(gain, -1, -2)  # (A.30)
