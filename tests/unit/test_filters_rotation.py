@@ -110,6 +110,12 @@ def test_invalid_configuration_is_an_error(change):
         dataclasses.replace(MotionFilterConfig(), **change)
 
 
+@pytest.mark.parametrize("change", [{"steps": 5, "warm_up": 5}, {"flip_prob": 0.6, "outlier_prob": 0.5}, {"outlier_deg": (90.0, 30.0)}])
+def test_invalid_scenario_is_an_error(change):
+    with pytest.raises(ValueError):
+        dataclasses.replace(Scenario(), **change)
+
+
 def test_bingham_filters_beat_the_ukf_under_heavy_tailed_noise_and_stay_consistent():
     """Simulated large rotations with outliers and 180° flips (``simulation.compare``)."""
     res = compare(seed=0, sc=Scenario(runs=24, steps=120))

@@ -28,6 +28,14 @@ class Scenario:
     flip_prob: float = 0.04  # 180° turns about a body axis
     warm_up: int = 10  # frames left out of the statistics
 
+    def __post_init__(self):
+        if self.runs < 1 or not 0 <= self.warm_up < self.steps:
+            raise ValueError("need runs >= 1 and 0 <= warm_up < steps")
+        if not (0 <= self.outlier_prob and 0 <= self.flip_prob and self.outlier_prob + self.flip_prob < 1):
+            raise ValueError("outlier_prob and flip_prob must be non-negative with a sum below 1")
+        if not 0 <= self.outlier_deg[0] <= self.outlier_deg[1] <= 180:
+            raise ValueError(f"outlier_deg must be an ordered range within [0, 180], got {self.outlier_deg}")
+
 
 def simulate(cfg: MotionFilterConfig, sc: Scenario, rng: np.random.Generator):
     """Truth ``(T, R, 4)``, measurements ``(T, R, 4)`` and outlier flags ``(T, R)``."""
@@ -54,7 +62,7 @@ def run_filters(cfg: MotionFilterConfig, truth, meas, kinds=KINDS) -> dict[str, 
     """Errors (rad, ``(T, R)``) and NEES ``(T, R)`` of each filter on the measurements."""
     out = {}
     for kind in kinds:
-        filt = make_rotation_filter(MotionFilterConfig(**{**vars(cfg), "rotation_filter": kind}))
+        filt = make_rotation_filter(replace(cfg, rotation_filter=kind))
         state = filt.init(meas[0], np.zeros(meas.shape[1:2] + (3,)))
         err, nees = np.zeros(meas.shape[:2]), np.zeros(meas.shape[:2])
         for t in range(meas.shape[0]):
