@@ -6,16 +6,15 @@ import numpy as np
 import pytest
 
 from uav_landing_vision.boosting.evaluation import (
-    STAT_KEYS,
     BoostingEvalConfig,
     closest_errors,
-    error_statistics,
     evaluate_boosting,
     format_tables,
-    normal_background,
+    normal_backgrounds,
     sample_positions,
     silhouette_roi,
 )
+from uav_landing_vision.evaluation.statistics import STAT_KEYS
 from uav_landing_vision.camera import load_camera_info_yaml
 from uav_landing_vision.cli import main
 from uav_landing_vision.geometry import euler_zyx_to_quat
@@ -26,17 +25,6 @@ from uav_landing_vision.resources import config_path
 @pytest.fixture(scope="module")
 def camera():
     return load_camera_info_yaml(config_path("camera.yaml")).rectified()
-
-
-def test_statistics_rows():
-    e = np.array([-2.0, -1.0, 0.0, 1.0, 2.0, 100.0])
-    s = error_statistics(e)
-    assert list(s) == list(STAT_KEYS)
-    assert s["median"] == pytest.approx(0.5)
-    assert s["mae"] == pytest.approx(106 / 6)
-    assert s["rmse"] == pytest.approx(np.sqrt(np.mean(e**2)))
-    assert s["sd"] == pytest.approx(np.std(e))
-    assert s["outlier_pct"] == pytest.approx(100 / 6)
 
 
 def test_closest_hypothesis_is_chosen_by_rotation_among_the_first_k():
@@ -57,8 +45,10 @@ def test_positions_are_at_the_distance_and_in_view(camera):
 
 
 def test_background_and_roi(camera):
-    bg = normal_background(camera)
-    assert bg.shape == (camera.height, camera.width, 3) and bg.dtype == np.uint8
+    frames, sun, _ = normal_backgrounds(camera, 2, 0)
+    assert frames[0].shape == (camera.height, camera.width, 3) and frames[0].dtype == np.uint8
+    assert not np.array_equal(frames[0], frames[1])  # the sea moves
+    assert np.linalg.norm(sun) == pytest.approx(1.0)
     alpha = np.zeros((100, 200), np.float32)
     alpha[40:60, 50:150] = 1.0
     assert silhouette_roi(alpha) == (38, 36, 124, 28)

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from uav_landing_vision.boosting.obb import (
-    ObbConfig,
+    FastConfig,
     aspect_ratio,
     obb_from_frame,
     obb_from_mask,
@@ -98,31 +98,24 @@ def test_aspect_ratio_is_w_over_h():
     np.testing.assert_allclose(aspect_ratio(np.array([4.0, 9.0]), np.array([2.0, 3.0])), [2.0, 3.0])
 
 
-@pytest.mark.parametrize("cue", ["fast", "border"])
-def test_box_of_a_drawn_rectangle_over_a_gradient(cue):
+def test_fast_box_of_a_drawn_rectangle_over_a_gradient():
     rows = np.linspace(60, 180, 300)[:, None, None] * np.ones((1, 400, 3))
     frame = rows.astype(np.uint8)
     pts = cv2.boxPoints(((220.0, 140.0), (150.0, 50.0), 25.0))
     cv2.fillPoly(frame, [np.round(pts).astype(np.int32)], (230, 230, 230))
-    box = obb_from_frame(frame, (100, 50, 250, 200), ObbConfig(cue=cue))
+    box = obb_from_frame(frame, (100, 50, 250, 200))
     assert _angle_diff(box.theta, 25.0) < 3.0
     assert (box.x, box.y) == pytest.approx((220.0, 140.0), abs=3.0)
     assert box.w == pytest.approx(150.0, abs=6.0)
     assert box.h == pytest.approx(50.0, abs=6.0)
 
 
-@pytest.mark.parametrize("cue", ["fast", "border"])
-def test_flat_roi_has_no_box(cue):
+def test_flat_roi_or_too_few_corners_has_no_box():
     frame = np.full((100, 100), 128, np.uint8)
-    assert obb_from_frame(frame, (10, 10, 50, 50), ObbConfig(cue=cue)) is None
-
-
-def test_border_cue_ignores_a_horizon_crossing_the_roi():
-    frame = np.full((200, 300, 3), (200, 220, 240), np.uint8)
-    frame[100:] = (40, 80, 110)  # sea below the horizon
-    frame[80:95, 100:200] = (90, 90, 90)  # the UAV, just above the horizon
-    box = obb_from_frame(frame, (60, 40, 200, 120))
-    assert (box.x, box.y, box.w, box.h) == pytest.approx((149.5, 87.0, 100.0, 15.0), abs=1e-3)
+    assert obb_from_frame(frame, (10, 10, 50, 50)) is None
+    frame[30:40, 30:40] = 250  # four corners
+    assert obb_from_frame(frame, (10, 10, 50, 50), FastConfig(min_corners=3)) is not None
+    assert obb_from_frame(frame, (10, 10, 50, 50), FastConfig(min_corners=50)) is None
 
 
 @pytest.mark.parametrize(
@@ -140,9 +133,7 @@ def test_bad_frame_or_roi_is_a_clear_error(frame, roi, message):
         obb_from_frame(frame, roi)
 
 
-@pytest.mark.parametrize(
-    "kwargs", [{"cue": "canny"}, {"fast_threshold": 0}, {"border_threshold": 0.0}, {"min_points": 2}]
-)
-def test_obb_config_validation(kwargs):
+@pytest.mark.parametrize("kwargs", [{"threshold": 0}, {"threshold": 256}, {"min_corners": 2}])
+def test_fast_config_validation(kwargs):
     with pytest.raises(ValueError):
-        ObbConfig(**kwargs)
+        FastConfig(**kwargs)

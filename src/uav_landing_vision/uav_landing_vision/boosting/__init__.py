@@ -20,7 +20,7 @@ from .hypotheses import (
     weak_perspective_depth,
     weak_perspective_position,
 )
-from .obb import Obb, ObbConfig, aspect_ratio, obb_from_frame, obb_from_mask, obb_from_points
+from .obb import FastConfig, Obb, aspect_ratio, obb_from_frame, obb_from_mask, obb_from_points
 
 __all__ = [
     "ASPECT_WEIGHT",
@@ -28,10 +28,10 @@ __all__ = [
     "NOMINAL_QUAT",
     "DatabaseConfig",
     "DatabaseError",
+    "FastConfig",
     "Hypotheses",
     "HypothesisConfig",
     "Obb",
-    "ObbConfig",
     "PoseDatabase",
     "PoseHypothesisGenerator",
     "aspect_ratio",

@@ -28,8 +28,6 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
     p.add_argument("--placement", choices=("axis", "view"), default="axis",
                    help="axis: X=Y=0 (default); view: random ray keeping the UAV in the image")
-    p.add_argument("--cue", choices=("border", "fast"), default="border",
-                   help="box cue in the ROI: border (default) or fast (FAST corners, the thesis)")
     p.add_argument("--aspect-weight", type=float, default=10.0,
                    help="weight of the aspect ratio in the distance (4.4) (default: 10; the thesis: 1)")
     p.add_argument("--thesis-centre", action="store_true", help="use the box centre as is in (4.6)-(4.7), as the thesis")
@@ -77,7 +75,6 @@ def _evaluate(args) -> int:
     import json
 
     from .evaluation import BoostingEvalConfig, evaluate_boosting, format_tables
-    from .obb import ObbConfig
 
     if args.samples < 1 or min(args.top) < 1 or min(args.distances) <= 0:
         raise SystemExit("--samples and --top must be positive, --distances above zero")
@@ -85,7 +82,7 @@ def _evaluate(args) -> int:
     config = BoostingEvalConfig(
         samples=args.samples, distances=tuple(args.distances), top=tuple(sorted(set(args.top))),
         seed=args.seed, placement=args.placement, centre_offset=not args.thesis_centre,
-        obb=ObbConfig(cue=args.cue), aspect_weight=args.aspect_weight,
+        aspect_weight=args.aspect_weight,
     )
     result = evaluate_boosting(camera, mesh, config, database_path=args.database, progress=not args.quiet)
     print(format_tables(result))

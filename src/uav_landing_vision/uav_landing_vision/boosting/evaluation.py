@@ -2,9 +2,9 @@
 
 Each sample is a random orientation from the database's interval, placed at ``distance`` metres
 on the optical axis (``axis``, X = Y = 0 as the database) or on a random ray that keeps the
-model inside the image (``view``), rendered shaded over a plain sky/sea gradient (the normal
-background, no noise or blur). The ROI is the rendered
-silhouette's bounding box grown by 10 %. Among the top-k hypotheses the one with the smallest
+model inside the image (``view``), rendered shaded (sun light) over the simulator's ``normal``
+background seen from the still deck camera (one of a few pre-drawn frames, the sea moving
+between them; no noise or blur). The ROI is the rendered silhouette's bounding box grown by 10 %. Among the top-k hypotheses the one with the smallest
 geodesic error (6.3) is taken; its errors are ground truth minus hypothesis per coordinate and
 the Z-Y-X Euler angles of q_g ⊗ q̄_r (6.4).
 """
@@ -15,21 +15,20 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..camera import CameraModel
+from ..evaluation.statistics import ROW_NAMES, STAT_KEYS, error_statistics
 from ..geometry import euler_error, geodesic_angle
 from .database import ASPECT_WEIGHT, PoseDatabase, sample_orientations
 from .hypotheses import hypotheses_from_obb
-from .obb import ObbConfig, obb_from_frame
+from .obb import FastConfig, obb_from_frame
 
-STAT_KEYS = ("p5", "p25", "median", "p75", "p95", "outlier_pct", "mae", "rmse", "sd")
-_ROW_NAMES = ("5% Percentile", "25% Percentile", "Median", "75% Percentile", "95% Percentile",
-              "Outlier %", "MAE", "RMSE", "SD")
 ROI_MARGIN = 0.10
 PLACEMENTS = ("axis", "view")
+BACKGROUND_FRAMES = 8
 
 
 @dataclass(frozen=True)
 class BoostingEvalConfig:
-    """Samples per distance, distances (m), top-k counts, seed, placement, centre offset, OBB cue."""
+    """Samples per distance, distances (m), top-k counts, seed, placement, centre offset, FAST, (4.4) weight."""
 
     samples: int = 15000
     distances: tuple[float, ...] = (5.0, 15.0, 30.0)
@@ -37,7 +36,7 @@ class BoostingEvalConfig:
     seed: int = 0
     placement: str = "axis"
     centre_offset: bool = True
-    obb: ObbConfig = field(default_factory=ObbConfig)
+    fast: FastConfig = field(default_factory=FastConfig)
     aspect_weight: float = ASPECT_WEIGHT
 
     def __post_init__(self):
@@ -45,24 +44,17 @@ class BoostingEvalConfig:
             raise ValueError(f"placement must be one of {PLACEMENTS}, got {self.placement!r}")
 
 
-def error_statistics(errors: np.ndarray) -> dict:
-    """The thesis table rows of signed errors ``(N,)``: percentiles, outlier % (1.5 IQR), MAE, RMSE, SD."""
-    e = np.asarray(errors, dtype=float)
-    p5, p25, p50, p75, p95 = np.percentile(e, [5, 25, 50, 75, 95])
-    iqr = p75 - p25
-    outliers = np.mean((e < p25 - 1.5 * iqr) | (e > p75 + 1.5 * iqr)) * 100.0
-    values = (p5, p25, p50, p75, p95, outliers, np.mean(np.abs(e)), np.sqrt(np.mean(e**2)), np.std(e))
-    return {k: float(v) for k, v in zip(STAT_KEYS, values)}
+def normal_backgrounds(camera: CameraModel, count: int, seed: int):
+    """``count`` frames of the simulator's ``normal`` background from the still deck camera, 1 s
+    apart, the sun direction in the optical frame and the simulator's UAV albedo."""
+    from ..sim import NormalBackground, camera_mount
+    from ..sim.config import BackgroundConfig, ImagingConfig, ShipConfig
 
-
-def normal_background(camera: CameraModel, horizon: float = 0.45) -> np.ndarray:
-    """A plain sky (light to pale blue) over sea (blue-green to deep blue) gradient, RGB uint8."""
-    h, w = camera.height, camera.width
-    v = (np.arange(h) + 0.5) / h
-    sky = np.clip(v / horizon, 0, 1)[:, None] * [[-40, -25, -5]] + [[200, 220, 240]]
-    sea = np.clip((v - horizon) / (1 - horizon), 0, 1)[:, None] * [[-20, -40, -50]] + [[50, 95, 125]]
-    rows = np.where((v < horizon)[:, None], sky, sea)
-    return np.ascontiguousarray(np.broadcast_to(rows[:, None, :], (h, w, 3)).astype(np.uint8))
+    ship = ShipConfig()
+    background = NormalBackground(camera, BackgroundConfig(), ship, np.random.default_rng(seed))
+    rot, pos = camera_mount(ship)
+    frames = [background.frame(i, float(i), rot, pos) for i in range(count)]
+    return frames, rot.T @ background.sun, ImagingConfig().albedo
 
 
 def sample_positions(camera: CameraModel, distance: float, radius: float, count: int,
@@ -108,7 +100,7 @@ def evaluate_boosting(camera: CameraModel, mesh, config: BoostingEvalConfig = Bo
     db = PoseDatabase.load(database_path or model_path(DEFAULT_FILE), camera=camera, mesh=mesh,
                            aspect_weight=config.aspect_weight)
     renderer = Renderer(camera, mesh)
-    background = normal_background(camera)
+    backgrounds, sun, albedo = normal_backgrounds(camera, BACKGROUND_FRAMES, config.seed)
     radius = float(np.max(np.linalg.norm(mesh.vertices, axis=1)))
     kmax, top = max(config.top), tuple(config.top)
     stats, failures = {}, {}
@@ -124,9 +116,10 @@ def evaluate_boosting(camera: CameraModel, mesh, config: BoostingEvalConfig = Bo
         r_err = np.full((config.samples, len(top), 3), np.nan)
         for i in tqdm(range(config.samples), desc=f"{distance:g} m", disable=not progress, file=sys.stderr,
                       mininterval=2.0):
-            rgb, alpha = renderer.shaded(quats[i], trans[i], background)
+            rgb, alpha = renderer.shaded(quats[i], trans[i], backgrounds[i % len(backgrounds)],
+                                         albedo=albedo, light_dir=sun)
             roi = silhouette_roi(alpha)
-            obb = None if roi is None else obb_from_frame(rgb, roi, config.obb)
+            obb = None if roi is None else obb_from_frame(rgb, roi, config.fast)
             if obb is None:
                 continue
             hyp = hypotheses_from_obb(db, obb, kmax, camera, config.centre_offset)
@@ -159,7 +152,8 @@ def format_tables(result: dict) -> str:
             width = 8 * len(ks)
             out.append(f"{'':16}" + "".join(f"| {name:<{width - 2}}" for name in label))
             out.append(f"{'':16}" + "".join("| " + "".join(f"{k:>8}" for k in ks)[2:] + "  " for _ in axes))
-            for key, row in zip(STAT_KEYS, _ROW_NAMES):
+            for key in STAT_KEYS:
+                row = ROW_NAMES[key]
                 cells = "".join(f"{per_k[k][group][a][key]:8.2f}" for a in axes for k in ks)
                 out.append(f"{row:16}{cells}")
             out.append("")

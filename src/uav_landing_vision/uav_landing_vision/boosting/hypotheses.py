@@ -13,16 +13,16 @@ import numpy as np
 
 from ..camera import CameraModel
 from .database import PoseDatabase
-from .obb import THETA_PERIOD_DEG, ObbConfig, Obb, obb_from_frame
+from .obb import THETA_PERIOD_DEG, FastConfig, Obb, obb_from_frame
 
 
 @dataclass(frozen=True)
 class HypothesisConfig:
-    """M hypotheses at the first frame, M − M0 afterwards; OBB cue; centre offset on/off."""
+    """M hypotheses at the first frame, M − M0 afterwards; FAST settings; centre offset on/off."""
 
     particles: int = 100
     kept: int = 75
-    obb: ObbConfig = field(default_factory=ObbConfig)
+    fast: FastConfig = field(default_factory=FastConfig)
     centre_offset: bool = True
 
     def __post_init__(self):
@@ -99,7 +99,7 @@ class PoseHypothesisGenerator:
         frame = np.asarray(frame)
         if frame.shape[:2] != (self.camera.height, self.camera.width):
             raise ValueError(f"frame is {frame.shape[1]}x{frame.shape[0]}, camera is {self.camera.width}x{self.camera.height}")
-        obb = obb_from_frame(frame, roi, self.config.obb)
+        obb = obb_from_frame(frame, roi, self.config.fast)
         if obb is None:
             return None
         k = self.config.count(first_frame) if count is None else count

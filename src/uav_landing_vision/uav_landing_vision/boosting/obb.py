@@ -33,34 +33,22 @@ class Obb(NamedTuple):
         return self.w * self.h
 
 
-CUES = ("border", "fast")
-
-
 @dataclass(frozen=True)
-class ObbConfig:
-    """Which image cue gives the box inside the ROI, and its thresholds.
+class FastConfig:
+    """FAST corners (radius-3 Bresenham circle, OpenCV) that outline the UAV in the ROI.
 
-    ``fast`` (the thesis): FAST corners (radius-3 Bresenham circle, OpenCV) with intensity
-    ``fast_threshold``; non-maximum suppression off, as the box needs the outermost corner
-    pixels and suppression drops corners whose neighbours tie their score. ``border`` (default,
-    better on the simulator — see ``models/README.md``): the pixels that differ by more than
-    ``border_threshold`` from the background interpolated from the ROI border (:func:`border_foreground`).
+    Non-maximum suppression is off: the box needs the outermost corner pixels, not well-spread
+    ones, and suppression drops every corner whose neighbours tie its score.
     """
 
-    cue: str = "border"
-    fast_threshold: int = 20
-    border_threshold: float = 20.0
-    min_points: int = 3
+    threshold: int = 20
+    min_corners: int = 3
 
     def __post_init__(self):
-        if self.cue not in CUES:
-            raise ValueError(f"OBB cue must be one of {CUES}, got {self.cue!r}")
-        if not 0 < self.fast_threshold < 256:
-            raise ValueError(f"fast_threshold must be in 1..255, got {self.fast_threshold}")
-        if not 0 < self.border_threshold < 255:
-            raise ValueError(f"border_threshold must be in (0, 255), got {self.border_threshold}")
-        if self.min_points < 3:
-            raise ValueError(f"min_points must be at least 3, got {self.min_points}")
+        if not 0 < self.threshold < 256:
+            raise ValueError(f"FAST threshold must be in 1..255, got {self.threshold}")
+        if self.min_corners < 3:
+            raise ValueError(f"min_corners must be at least 3, got {self.min_corners}")
 
 
 def aspect_ratio(w, h):
@@ -134,31 +122,12 @@ def fast_corners(gray_roi: np.ndarray, threshold: int) -> np.ndarray:
     return np.array([kp.pt for kp in keypoints], dtype=np.float32).reshape(-1, 2)
 
 
-def border_foreground(image_roi: np.ndarray, threshold: float) -> np.ndarray:
-    """Foreground mask of a ROI crop whose border is background: each pixel is compared with the
-    background interpolated linearly between the left/right border pixels of its row and between
-    the top/bottom border pixels of its column; it is foreground if both differ by more than
-    ``threshold`` (max over channels). Smooth sky/sea gradients and a horizon stay background."""
-    crop = image_roi.astype(np.float32).reshape(image_roi.shape[0], image_roi.shape[1], -1)
-    h, w = crop.shape[:2]
-    s = np.linspace(0.0, 1.0, w, dtype=np.float32)[None, :, None]
-    t = np.linspace(0.0, 1.0, h, dtype=np.float32)[:, None, None]
-    across = crop[:, :1] + (crop[:, -1:] - crop[:, :1]) * s
-    down = crop[:1] + (crop[-1:] - crop[:1]) * t
-    diff = np.minimum(np.abs(crop - across).max(axis=2), np.abs(crop - down).max(axis=2))
-    return (diff > threshold).astype(np.uint8)
-
-
-def obb_from_frame(image: np.ndarray, roi, config: ObbConfig = ObbConfig()) -> Obb | None:
-    """Oriented box (4.2) of the UAV inside the detector ROI ``(x, y, w, h)`` of a rectified
-    uint8 frame, in full-image pixels, from the configured cue; None when the cue finds too little."""
-    image = np.asarray(image)
+def obb_from_frame(image: np.ndarray, roi, config: FastConfig = FastConfig()) -> Obb | None:
+    """Oriented box (4.2) of the FAST corners inside the detector ROI ``(x, y, w, h)`` of a
+    rectified uint8 frame, in full-image pixels; None when too few corners are found."""
     gray = to_gray(image)
     x, y, w, h = check_roi(roi, gray.shape[1], gray.shape[0])
-    if config.cue == "fast":
-        points = fast_corners(gray[y : y + h, x : x + w], config.fast_threshold)
-        box = obb_from_points(points) if len(points) >= config.min_points else None
-    else:
-        mask = border_foreground(image[y : y + h, x : x + w], config.border_threshold)
-        box = obb_from_mask(mask) if np.count_nonzero(mask) >= config.min_points else None
-    return None if box is None else box._replace(x=box.x + x, y=box.y + y)
+    corners = fast_corners(gray[y : y + h, x : x + w], config.threshold)
+    if len(corners) < config.min_corners:
+        return None
+    return obb_from_points(corners + np.array([x, y], dtype=np.float32))
