@@ -108,7 +108,17 @@ def test_generator_counts_and_errors(camera):
         PoseHypothesisGenerator(db, other)
 
 
-@pytest.mark.parametrize("particles, kept", [(0, 0), (10, 10), (10, -1)])
-def test_hypothesis_config_validation(particles, kept):
+@pytest.mark.parametrize("kwargs", [{"particles": 0, "kept": 0}, {"particles": 10, "kept": 10},
+                                    {"kept": -1}, {"aspect_weight": 0.0}])
+def test_hypothesis_config_validation(kwargs):
     with pytest.raises(ValueError):
-        HypothesisConfig(particles=particles, kept=kept)
+        HypothesisConfig(**kwargs)
+
+
+def test_generator_from_config_loads_the_shipped_database(camera):
+    from uav_landing_vision.model import fixed_wing_mesh
+
+    gen = PoseHypothesisGenerator.from_config(HypothesisConfig(aspect_weight=3.0), camera, fixed_wing_mesh("high"))
+    assert len(gen.database) == 11000 and gen.database.aspect_weight == 3.0
+    with pytest.raises(ValueError, match="not found"):
+        PoseHypothesisGenerator.from_config(HypothesisConfig(database="/nonexistent/db.npz"), camera)

@@ -4,9 +4,10 @@ Each sample is a random orientation from the database's interval, placed at ``di
 on the optical axis (``axis``, X = Y = 0 as the database) or on a random ray that keeps the
 model inside the image (``view``), rendered shaded (sun light) over the simulator's ``normal``
 background seen from the still deck camera (one of a few pre-drawn frames, the sea moving
-between them; no noise or blur). The ROI is the rendered silhouette's bounding box grown by 10 %. Among the top-k hypotheses the one with the smallest
-geodesic error (6.3) is taken; its errors are ground truth minus hypothesis per coordinate and
-the Z-Y-X Euler angles of q_g ⊗ q̄_r (6.4).
+between them; no noise or blur). The ROI is the rendered silhouette's bounding box grown by
+10 %. Among the top-k hypotheses the one with the smallest geodesic error (6.3) is taken; its
+errors are ground truth minus hypothesis per coordinate and the Z-Y-X Euler angles of
+q_g ⊗ q̄_r (6.4).
 """
 
 import sys
@@ -28,7 +29,7 @@ BACKGROUND_FRAMES = 8
 
 @dataclass(frozen=True)
 class BoostingEvalConfig:
-    """Samples per distance, distances (m), top-k counts, seed, placement, centre offset, FAST, (4.4) weight."""
+    """Samples per distance, distances (m), top-k, seed, placement, centre offset, FAST, (4.4) weight."""
 
     samples: int = 15000
     distances: tuple[float, ...] = (5.0, 15.0, 30.0)

@@ -12,22 +12,27 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..camera import CameraModel
-from .database import PoseDatabase
+from .database import ASPECT_WEIGHT, DEFAULT_FILE, PoseDatabase
 from .obb import THETA_PERIOD_DEG, FastConfig, Obb, obb_from_frame
 
 
 @dataclass(frozen=True)
 class HypothesisConfig:
-    """M hypotheses at the first frame, M − M0 afterwards; FAST settings; centre offset on/off."""
+    """M hypotheses at the first frame, M − M0 afterwards; the database file (a name in
+    ``models/`` or a path) and its (4.4) weight; FAST settings; centre offset on/off."""
 
     particles: int = 100
     kept: int = 75
+    database: str = DEFAULT_FILE
+    aspect_weight: float = ASPECT_WEIGHT
     fast: FastConfig = field(default_factory=FastConfig)
     centre_offset: bool = True
 
     def __post_init__(self):
         if self.particles < 1 or not 0 <= self.kept < self.particles:
             raise ValueError(f"need particles M >= 1 and 0 <= kept M0 < M, got M={self.particles}, M0={self.kept}")
+        if not self.aspect_weight > 0:
+            raise ValueError(f"aspect_weight must be positive, got {self.aspect_weight}")
 
     def count(self, first_frame: bool) -> int:
         """M at the first frame, M − M0 afterwards."""
@@ -92,6 +97,18 @@ class PoseHypothesisGenerator:
             camera = camera.rectified()
         database.check_compatible(camera)
         self.database, self.camera, self.config = database, camera, config
+
+    @classmethod
+    def from_config(cls, config: HypothesisConfig, camera: CameraModel, mesh=None) -> "PoseHypothesisGenerator":
+        """Load ``config.database`` (checked against the camera and, if given, the mesh)."""
+        from pathlib import Path
+
+        from ..resources import model_path
+
+        path = Path(config.database)
+        path = path if path.is_absolute() or path.exists() else model_path(config.database)
+        database = PoseDatabase.load(path, camera=camera.rectified(), mesh=mesh, aspect_weight=config.aspect_weight)
+        return cls(database, camera, config)
 
     def generate(self, frame: np.ndarray, roi, first_frame: bool = False, count: int | None = None) -> Hypotheses | None:
         """Hypotheses for the rectified ``frame`` and ROI ``(x, y, w, h)``: ``count`` of them
