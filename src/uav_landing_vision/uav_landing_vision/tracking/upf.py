@@ -225,7 +225,7 @@ class Tracker:
         particles = self._resample(mixed, w)
         clock.lap("resampling")
         if self.config.iterations > 0 and particles.weight.sum() > 0:
-            particles = self.optimiser.run(particles, self.likelihood, self.rng, self.config.iterations)
+            particles = self._optimise(particles)
         clock.lap("optimisation")
         return self._output(particles, stamp_ns, clock)
 
@@ -280,6 +280,17 @@ class Tracker:
             return particles.with_weight(w)
         idx = fixed_size(resample(self.config.resampling, w, self.rng), w, self.rng, len(particles))
         return particles.take(idx, weight=w[idx])
+
+    def _optimise(self, particles: ParticleSet) -> ParticleSet:
+        """Step 4 (§5.5), with elitism: if no optimised pose beats the best pose scored before the
+        optimisation, that pose replaces the worst optimised one (the colour metric's peak is a few
+        pixels wide, so the §6.7.1 PFO noise can step every copy off it; the thesis has no such guard)."""
+        elite = particles.take([particles.best_index()])
+        out = self.optimiser.run(particles, self.likelihood, self.rng, self.config.iterations)
+        if elite.weight[0] <= out.weight.max():
+            return out
+        keep = np.argsort(-out.weight, kind="stable")[: len(out) - 1]
+        return ParticleSet.concat([elite, out.take(keep)])
 
     def _output(self, particles: ParticleSet, stamp_ns: int, clock) -> TrackResult:
         """Step 5: best particle, covariance, track state; the set is kept best first."""
