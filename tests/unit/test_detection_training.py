@@ -10,7 +10,7 @@ from uav_landing_vision.detection.detector import Detector, DetectorConfig, deco
 from uav_landing_vision.detection.evaluation import average_precision, match_frame, summarise  # noqa: E402
 from uav_landing_vision.detection.export import export_onnx  # noqa: E402
 from uav_landing_vision.detection.network import STRIDES, UavDetectorNet, decode_torch  # noqa: E402
-from uav_landing_vision.detection.train import build_targets, detection_loss, giou_loss  # noqa: E402
+from uav_landing_vision.detection.train import build_targets, detection_loss, giou_loss, random_crop  # noqa: E402
 
 
 def _positives(targets):
@@ -27,6 +27,23 @@ def test_targets_pick_the_head_by_size_and_the_cells_inside_the_box():
     pos, target, _ = medium[0]
     np.testing.assert_allclose(target[0, 2, 2].numpy(), [0, 0, 40, 40])
     assert all(not p.any() for p, _, _ in build_targets([torch.zeros((0, 4))], 64, 64))
+
+
+def test_random_crop_shifts_and_clips_boxes():
+    y, x = np.mgrid[0:384, 0:640]
+    img = np.stack([x % 256, y % 256, x // 256], axis=-1).astype(np.uint8)  # pixels encode their position
+    boxes = np.array([[300.0, 100.0, 316.0, 108.0], [0.0, 370.0, 30.0, 384.0]])
+    holds_centre = 0
+    for seed in range(40):
+        crop, out = random_crop(img, boxes, (320, 192), np.random.default_rng(seed))
+        assert crop.shape == (192, 320, 3)
+        x0, y0 = int(crop[0, 0, 0]) + 256 * int(crop[0, 0, 2]), int(crop[0, 0, 1])
+        expected = np.clip(boxes - [x0, y0, x0, y0], 0, [320, 192, 320, 192])
+        expected = expected[(expected[:, 2] - expected[:, 0] >= 2) & (expected[:, 3] - expected[:, 1] >= 2)]
+        np.testing.assert_allclose(out, expected)
+        holds_centre += bool(x0 <= 308 < x0 + 320 and y0 <= 104 < y0 + 192)
+    assert holds_centre >= 28
+    assert random_crop(img, boxes[:0], (320, 192), np.random.default_rng(0))[1].shape == (0, 4)
 
 
 def test_giou_loss_hand_made():

@@ -26,6 +26,7 @@ def register(sub) -> None:
     p.add_argument("--batch", type=int, default=16)
     p.add_argument("--lr", type=float, default=2e-3)
     p.add_argument("--input", type=_size, default=(640, 384), help="letterbox WxH (default 640x384)")
+    p.add_argument("--crop", type=_size, default=(320, 192), help="training crop WxH (0x0: whole frames)")
     p.add_argument("--width", type=int, default=48, help="network width (stride-8 channels)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=2)
@@ -66,7 +67,7 @@ def _train(args) -> int:
 
     try:
         cfg = TrainConfig(data=str(args.data), out=str(args.out), epochs=args.epochs, batch=args.batch,
-                          lr=args.lr, input_size=args.input, width=args.width, seed=args.seed,
+                          lr=args.lr, input_size=args.input, crop=args.crop, width=args.width, seed=args.seed,
                           threads=args.threads, max_images=args.max_images)
     except ValueError as exc:
         raise SystemExit(f"train-detector: {exc}") from None

@@ -36,6 +36,7 @@ class TrainConfig:
     lr: float = 2e-3
     weight_decay: float = 5e-4
     input_size: tuple[int, int] = (640, 384)  # (width, height) of the full-frame letterbox
+    crop: tuple[int, int] = (320, 192)  # training crops of the letterboxed frame (0, 0: none)
     width: int = 48
     seed: int = 0
     threads: int = 2
@@ -44,18 +45,18 @@ class TrainConfig:
     def __post_init__(self):
         if self.epochs < 1 or self.batch < 1 or self.lr <= 0 or self.width < 8 or self.threads < 1:
             raise ValueError("need epochs ≥ 1, batch ≥ 1, lr > 0, width ≥ 8, threads ≥ 1")
-        if any(s % max(STRIDES) for s in self.input_size):
-            raise ValueError(f"input_size sides must be multiples of {max(STRIDES)}, got {self.input_size}")
+        if any(s % max(STRIDES) for s in self.input_size + self.crop):
+            raise ValueError(f"input_size and crop must be multiples of {max(STRIDES)}")
 
 
 class LetterboxedImages(torch.utils.data.Dataset):
     """Images of a generated dataset, letterboxed to the input size; random horizontal flip."""
 
-    def __init__(self, root, indices, input_size, seed: int, augment: bool):
+    def __init__(self, root, indices, input_size, seed: int, augment: bool, crop=(0, 0)):
         meta = json.loads((Path(root) / "dataset.json").read_text())
         self.root, self.indices, self.input_size = Path(root), list(indices), input_size
         self.size = (meta["width"], meta["height"])
-        self.seed, self.augment, self.epoch = seed, augment, 0
+        self.seed, self.augment, self.epoch, self.crop = seed, augment, 0, crop
 
     def __len__(self):
         return len(self.indices)
@@ -71,8 +72,25 @@ class LetterboxedImages(torch.utils.data.Dataset):
         if self.augment and rng.random() < 0.5:
             img = img[:, ::-1]
             boxes = np.stack([img.shape[1] - boxes[:, 2], boxes[:, 1], img.shape[1] - boxes[:, 0], boxes[:, 3]], 1)
+        if self.augment and self.crop[0]:
+            img, boxes = random_crop(img, boxes, self.crop, rng)
         tensor = torch.from_numpy(np.ascontiguousarray(img.transpose(2, 0, 1))).float().div_(255.0)
         return tensor, torch.from_numpy(boxes.astype(np.float32)).reshape(-1, 4)
+
+
+def random_crop(img: np.ndarray, boxes: np.ndarray, size, rng: np.random.Generator):
+    """A ``size`` = (w, h) crop holding the first box's centre 80 % of the time; boxes are
+    clipped to it and dropped when less than 2 px wide or high."""
+    cw, ch = min(size[0], img.shape[1]), min(size[1], img.shape[0])
+    lo, hi = np.zeros(2), np.array([img.shape[1] - cw, img.shape[0] - ch], float)
+    if len(boxes) and rng.random() < 0.8:
+        centre = (boxes[0, :2] + boxes[0, 2:]) / 2
+        lo, hi = np.maximum(lo, centre - [cw - 1, ch - 1]), np.minimum(hi, np.maximum(centre - 1, lo))
+    x0, y0 = (int(rng.integers(int(a), int(max(a, b)) + 1)) for a, b in zip(lo, hi))
+    out = boxes - [x0, y0, x0, y0]
+    out = np.clip(out, 0, [cw, ch, cw, ch])
+    keep = (out[:, 2] - out[:, 0] >= 2) & (out[:, 3] - out[:, 1] >= 2)
+    return img[y0 : y0 + ch, x0 : x0 + cw], out[keep]
 
 
 def collate(batch):
@@ -165,7 +183,7 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
     count = meta["images"] if cfg.max_images <= 0 else min(cfg.max_images, meta["images"])
     val_idx = [i for i in range(count) if i % VAL_EVERY == 0]
     train_idx = [i for i in range(count) if i % VAL_EVERY != 0]
-    train_set = LetterboxedImages(cfg.data, train_idx, cfg.input_size, cfg.seed, augment=True)
+    train_set = LetterboxedImages(cfg.data, train_idx, cfg.input_size, cfg.seed, augment=True, crop=cfg.crop)
     val_set = LetterboxedImages(cfg.data, val_idx, cfg.input_size, cfg.seed, augment=False)
     shuffle = torch.Generator().manual_seed(cfg.seed)
     train_loader = torch.utils.data.DataLoader(train_set, cfg.batch, shuffle=True, generator=shuffle,
