@@ -21,7 +21,7 @@ _RIGHT = np.concatenate([quat_multiply(_IDENTITY4, e).T for e in _IDENTITY4])
 
 
 class _Table:
-    """Spline coefficients of ``log F`` and ``log m_i`` over ``v_i = log(1 + |z_i|)``."""
+    """Cubic B-spline of ``[log F, log m_1, log m_2, log m_3]`` over ``v_i = log(1 + |z_i|)``."""
 
     def __init__(self, path):
         with np.load(path) as data:
@@ -29,20 +29,41 @@ class _Table:
             self.z_max = float(data["z_max"])
             self.v0, self.step = v[0], (v[-1] - v[0]) / (len(v) - 1)
             channels = [data["log_f"]] + [data["log_m"][..., i] for i in range(3)]
-        self.coeffs = [ndimage.spline_filter(c.astype(float), order=3, mode="nearest") for c in channels]
+        coeffs = [ndimage.spline_filter(c.astype(float), order=3, mode="nearest") for c in channels]
+        self.n = len(v)
+        self.coeffs = np.stack(coeffs, axis=-1).reshape(-1, 4)  # (n³, 4 channels)
 
-    def lookup(self, z: np.ndarray, channels) -> list[np.ndarray]:
-        """Interpolated channels (0: log F, 1..3: log m_i) at ``z (..., 3)``."""
+    def check(self, z: np.ndarray) -> np.ndarray:
         z = np.asarray(z, dtype=float)
         if np.any(z > 0) or np.any(z < -self.z_max * (1 + 1e-9)) or not np.all(np.isfinite(z)):
             raise ValueError(f"Bingham concentrations must lie in [-{self.z_max:g}, 0]")
-        coords = ((np.log1p(-z) - self.v0) / self.step).reshape(-1, 3).T
-        return [
-            ndimage.map_coordinates(self.coeffs[c], coords, order=3, mode="nearest", prefilter=False).reshape(
-                z.shape[:-1]
-            )
-            for c in channels
-        ]
+        return z
+
+    def lookup(self, z: np.ndarray) -> np.ndarray:
+        """The four channels at ``z (..., 3)``, ``(..., 4)``."""
+        z = self.check(z)
+        return self.evaluate(np.log1p(-z).reshape(-1, 3))[0].reshape(z.shape[:-1] + (4,))
+
+    def evaluate(self, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Channels ``(P, 4)`` and their gradients ``(P, 4, 3)`` with respect to ``v (P, 3)``."""
+        x = np.clip((v - self.v0) / self.step, 1.0, self.n - 2.0 - 1e-9)
+        i = np.floor(x).astype(np.intp)
+        t = (x - i)[..., None]
+        # Cubic B-spline weights of the nodes i-1 … i+2 and their derivatives, (P, 3, 4).
+        b = np.concatenate([(1 - t) ** 3, 3 * t**3 - 6 * t**2 + 4, -3 * t**3 + 3 * t**2 + 3 * t + 1, t**3], -1) / 6
+        db = np.concatenate([-((1 - t) ** 2), 3 * t**2 - 4 * t, -3 * t**2 + 2 * t + 1, t**2], -1) / 2
+        k = i[..., None] - 1 + np.arange(4)  # (P, 3, 4)
+        flat = (k[:, 0, :, None, None] * self.n + k[:, 1, None, :, None]) * self.n + k[:, 2, None, None, :]
+        c = self.coeffs[flat.reshape(len(v), 64)]  # (P, 64 nodes, 4 channels)
+
+        def outer(wx, wy, wz):
+            return (wx[:, :, None, None] * wy[:, None, :, None] * wz[:, None, None, :]).reshape(-1, 64)
+
+        (bx, by, bz), (dx, dy, dz) = np.moveaxis(b, 1, 0), np.moveaxis(db, 1, 0)
+        weights = np.stack([outer(bx, by, bz), outer(dx, by, bz), outer(bx, dy, bz), outer(bx, by, dz)], 1)
+        out = weights @ c  # (P, 1 + 3 derivatives, channels)
+        value, grad = out[:, 0], np.swapaxes(out[:, 1:], 1, 2)
+        return value, grad / self.step
 
 
 @lru_cache(maxsize=1)
@@ -74,13 +95,12 @@ def clamp_concentration(z: np.ndarray) -> np.ndarray:
 
 def normaliser(z: np.ndarray) -> np.ndarray:
     """Normalisation constant ``F(Z)`` (C.2) from the lookup table (§C.1.1)."""
-    return np.exp(_table().lookup(z, [0])[0])
+    return np.exp(_table().lookup(z)[..., 0])
 
 
 def moments(z: np.ndarray) -> np.ndarray:
     """``(∂F/∂z_i)/F`` for i = 1..4, ``(..., 4)``: the diagonal of (C.6); they sum to one."""
-    m = np.stack(_table().lookup(z, [1, 2, 3]), axis=-1)
-    m = np.exp(m)
+    m = np.exp(_table().lookup(z)[..., 1:])
     return np.concatenate([m, 1.0 - m.sum(axis=-1, keepdims=True)], axis=-1)
 
 
@@ -182,27 +202,20 @@ def fit(s: np.ndarray, iterations: int = 30) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _solve_moments(log_target: np.ndarray, iterations: int) -> np.ndarray:
-    """``z (N, 3)`` with ``log m_i(z) = log_target`` (Newton with a finite-difference Jacobian)."""
+    """``z (N, 3)`` with ``log m_i(z) = log_target`` (Newton on the spline's exact Jacobian)."""
     table = _table()
     v_max = np.log1p(table.z_max)
     # Start from the concentrated-limit m_i ≈ 1/(4 + 2|z_i|).
     v = np.clip(np.log1p(np.maximum(0.5 / np.exp(log_target) - 2.0, 0.0)), 0.0, v_max)
-    h = 1e-5
-    probes = np.concatenate([np.zeros((1, 3)), h * np.eye(3)])
-    n = len(v)
     for _ in range(iterations):
-        vv = np.clip(v[None] + probes[:, None], 0.0, v_max + h)
-        z = np.maximum(-np.expm1(vv), -table.z_max)
-        vals = np.stack(table.lookup(z, [1, 2, 3]), axis=-1)  # (4, N, 3)
-        res = vals[0] - log_target
-        jac = np.moveaxis((vals[1:] - vals[0]) / h, 0, -1)  # (N, 3 outputs, 3 inputs)
-        step = np.linalg.solve(jac + 1e-12 * np.eye(3), res[..., None])[..., 0]
+        value, grad = table.evaluate(v)
+        step = np.linalg.solve(grad[:, 1:] + 1e-12 * np.eye(3), (value[:, 1:] - log_target)[..., None])[..., 0]
         v_new = np.clip(v - np.clip(step, -2.0, 2.0), 0.0, v_max)
         done = np.max(np.abs(v_new - v)) < 1e-9
         v = v_new
         if done:
             break
-    return np.maximum(-np.expm1(v), -table.z_max).reshape(n, 3)
+    return np.maximum(-np.expm1(v), -table.z_max)
 
 
 def sample(m: np.ndarray, z: np.ndarray, n: int, rng: np.random.Generator, burn_in: int = 30) -> np.ndarray:
