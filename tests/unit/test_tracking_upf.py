@@ -1,0 +1,207 @@
+"""The UPF tracker (tracking/upf.py) on synthetic frames: proposals, determinism, track states,
+covariance, configuration."""
+
+import numpy as np
+import pytest
+
+from uav_landing_vision.camera import CameraModel
+from uav_landing_vision.config import ConfigError
+from uav_landing_vision.filters.motion import MotionFilterConfig
+from uav_landing_vision.geometry import geodesic_angle, quat_multiply
+from uav_landing_vision.model import fixed_wing_mesh
+from uav_landing_vision.render import Renderer
+from uav_landing_vision.sim.trajectory import FACING_CAMERA
+from uav_landing_vision.tracking.motion_bank import MotionBank
+from uav_landing_vision.tracking.optimisation import rotate_body
+from uav_landing_vision.tracking.particles import ParticleSet
+from uav_landing_vision.tracking.track_state import TrackMonitor, TrackState, TrackStateConfig
+from uav_landing_vision.tracking.upf import (
+    Tracker,
+    TrackerConfig,
+    load_tracker_config,
+    parse_variant,
+    particle_covariance,
+)
+
+CAMERA = CameraModel(320, 240, [[280.0, 0, 160.0], [0, 280.0, 120.0], [0, 0, 1]])
+TRUE_QUAT = np.array(FACING_CAMERA, float)
+TRUE_POS = np.array([0.1, -0.05, 6.0])
+SKY = np.broadcast_to(np.array([90, 140, 210], np.uint8), (240, 320, 3)).copy()
+
+
+@pytest.fixture(scope="module")
+def renderer():
+    return Renderer(CAMERA, fixed_wing_mesh("low"), max_batch=512)
+
+
+@pytest.fixture(scope="module")
+def frame(renderer):
+    """The UAV (dark grey) at the true pose over a plain sky, as a rectified frame."""
+    mask = renderer.silhouette_full(TRUE_QUAT, TRUE_POS)
+    img = SKY.copy()
+    img[mask] = (60, 60, 60)
+    return img
+
+
+class Hyps:
+    """Boosted poses as the pose_boosting node publishes them: arrays, best first."""
+
+    def __init__(self, quats, positions):
+        self.quats, self.positions = quats, positions
+
+
+def hypotheses(seed: int, count: int = 60, trans_sigma: float = 0.05, rot_sigma_deg: float = 4.0) -> Hyps:
+    """Truth plus noise: σ 5 cm in X, Y, 15 cm in Z (depth), 4° per axis."""
+    rng = np.random.default_rng(seed)
+    quats = rotate_body(np.tile(TRUE_QUAT, (count, 1)), rng.normal(size=(count, 3)) * np.radians(rot_sigma_deg))
+    return Hyps(quats, TRUE_POS + rng.normal(size=(count, 3)) * trans_sigma * np.array([1, 1, 3]))
+
+
+def run(renderer, frame, variant: str, seed: int = 0, frames: int = 4, **overrides):
+    cfg = TrackerConfig.from_variant(variant, particles=40, boosted=10, seed=seed, **overrides)
+    tracker = Tracker(cfg, CAMERA, renderer)
+    return tracker, [tracker.step(frame, k, hypotheses(100 + k)) for k in range(frames)]
+
+
+@pytest.mark.parametrize("variant", ["C1N0", "C2N1", "C3N0", "C4N2", "C5N1"])
+def test_every_variant_tracks_the_synthetic_uav(renderer, frame, variant):
+    tracker, results = run(renderer, frame, variant)
+    last = results[-1]
+    assert last.has_pose and last.state in (TrackState.ACQUIRING, TrackState.TRACKING)
+    assert np.linalg.norm(last.position - TRUE_POS) < 0.5
+    assert np.degrees(geodesic_angle(last.quat, TRUE_QUAT)) < 12.0
+    assert 1.0 <= last.effective_particles <= 40.0
+    assert set(last.stage_ms) >= {"weighting", "optimisation"} and all(v >= 0 for v in last.stage_ms.values())
+    assert len(last.particles) == 40
+
+
+def test_hypothesis_counts_follow_the_variant(renderer, frame):
+    c4 = Tracker(TrackerConfig.from_variant("C4N0", particles=40, boosted=10), CAMERA, renderer)
+    c1 = Tracker(TrackerConfig.from_variant("C1N0", particles=40, boosted=10), CAMERA, renderer)
+    assert c4.hypotheses_needed() == 40 and c1.hypotheses_needed() == 40
+    c4.step(frame, 0, hypotheses(1))
+    c1.step(frame, 0, hypotheses(1))
+    assert c4.hypotheses_needed() == 10 and c1.hypotheses_needed() == 40
+
+
+def test_optimisation_does_not_lose_the_best_pose(renderer, frame):
+    """With elitism, N > 0 never ends a frame below the best pre-optimisation score."""
+    _, n0 = run(renderer, frame, "C4N0", frames=1)
+    _, n3 = run(renderer, frame, "C4N3", frames=1)
+    assert n3[0].best_likelihood >= n0[0].best_likelihood
+
+
+def test_same_seed_same_estimates_other_seed_differs(renderer, frame):
+    _, a = run(renderer, frame, "C4N2", seed=7)
+    _, b = run(renderer, frame, "C4N2", seed=7)
+    _, c = run(renderer, frame, "C4N2", seed=8)
+    for ra, rb in zip(a, b):
+        np.testing.assert_array_equal(ra.position, rb.position)
+        np.testing.assert_array_equal(ra.quat, rb.quat)
+        np.testing.assert_array_equal(ra.covariance, rb.covariance)
+    assert any(not np.array_equal(ra.position, rc.position) for ra, rc in zip(a, c))
+
+
+def test_track_states_lost_reinitialise_acquire_track(renderer, frame):
+    cfg = TrackerConfig.from_variant("C4N0", particles=40, boosted=10,
+                                     track=TrackStateConfig(acquire_likelihood=0.1, acquire_frames=2,
+                                                            lost_likelihood=0.01, lost_frames=2))
+    tracker = Tracker(cfg, CAMERA, renderer)
+    nothing = tracker.step(frame, 0, None)  # no particles, no hypotheses
+    assert nothing.state == TrackState.LOST and not nothing.has_pose
+    states = [tracker.step(frame, k, hypotheses(k)).state for k in range(1, 4)]
+    assert states == [TrackState.ACQUIRING, TrackState.TRACKING, TrackState.TRACKING]
+    # the UAV leaves: an empty sky scores 0 everywhere
+    first = tracker.step(SKY, 4, hypotheses(4))
+    assert first.state == TrackState.TRACKING and not first.has_pose
+    second = tracker.step(SKY, 5, hypotheses(5))
+    assert second.state == TrackState.LOST and tracker.particles is None
+    assert tracker.hypotheses_needed() == 40
+    again = tracker.step(frame, 6, hypotheses(6))
+    assert again.state == TrackState.ACQUIRING and again.has_pose
+
+
+def test_prediction_carries_the_track_through_a_frame_without_hypotheses(renderer, frame):
+    tracker, _ = run(renderer, frame, "C4N1", frames=3)
+    res = tracker.step(frame, 3, None)
+    assert res.has_pose and res.state != TrackState.LOST
+    assert np.linalg.norm(res.position - TRUE_POS) < 0.5
+    c1, _ = run(renderer, frame, "C1N0", frames=2)
+    assert c1.step(frame, 2, None).state == TrackState.LOST  # C1 has no prediction
+
+
+def test_track_monitor_transitions():
+    m = TrackMonitor(TrackStateConfig(acquire_likelihood=0.5, acquire_frames=2, lost_likelihood=0.1, lost_frames=3))
+    assert m.state == TrackState.LOST
+    m.initialised()
+    assert [m.update(v) for v in (0.6, 0.3, 0.6, 0.6)] == [TrackState.ACQUIRING] * 3 + [TrackState.TRACKING]
+    assert [m.update(v) for v in (0.05, 0.05, 0.2, 0.05, 0.05)] == [TrackState.TRACKING] * 5  # interrupted
+    assert m.update(0.0) == TrackState.LOST
+    with pytest.raises(ValueError):
+        TrackStateConfig(acquire_likelihood=0.1, lost_likelihood=0.2)
+
+
+def test_covariance_is_the_weighted_particle_spread_in_camera_axes():
+    rng = np.random.default_rng(3)
+    m = 500
+    rot = rng.normal(size=(m, 3)) * np.radians([2.0, 4.0, 1.0])
+    pos = TRUE_POS + rng.normal(size=(m, 3)) * [0.1, 0.2, 0.5]
+    from scipy.spatial.transform import Rotation
+
+    quat = (Rotation.from_rotvec(rot) * Rotation.from_quat(TRUE_QUAT)).as_quat()  # camera-axis rotations
+    w = rng.uniform(0.5, 1.0, m)
+    cloud = ParticleSet(pos, quat, np.zeros((m, 3)), np.zeros((m, 3)), w)
+    cov = particle_covariance(cloud, TRUE_POS, TRUE_QUAT)
+    d = np.hstack([pos - TRUE_POS, rot])
+    ref = np.cov(d.T, aweights=w, bias=True)
+    np.testing.assert_allclose(cov, ref, atol=1e-10)
+    assert np.all(np.linalg.eigvalsh(cov) >= -1e-12)
+    floored = particle_covariance(cloud.take(np.zeros(m, int)), TRUE_POS, TRUE_QUAT, 0.05, np.radians(1.0))
+    np.testing.assert_allclose(floored, np.diag([0.05**2] * 3 + [np.radians(1.0) ** 2] * 3), atol=1e-12)
+
+
+def test_tracker_covariance_is_psd_and_floored(renderer, frame):
+    _, results = run(renderer, frame, "C4N2")
+    cov = results[-1].covariance
+    assert cov.shape == (6, 6) and np.allclose(cov, cov.T)
+    assert np.linalg.eigvalsh(cov).min() >= 0.999 * np.radians(1.0) ** 2  # the smaller floor (1°)
+    assert np.all(np.diag(cov)[:3] >= 0.05**2)
+
+
+@pytest.mark.parametrize("kind", ["ukf", "ubif", "ubigaf"])
+def test_recentred_filters_estimate_the_given_poses(kind):
+    bank = MotionBank(MotionFilterConfig(rotation_filter=kind))
+    rng = np.random.default_rng(0)
+    q0 = rotate_body(np.tile(TRUE_QUAT, (5, 1)), rng.normal(size=(5, 3)) * 0.1)
+    bank.init(np.tile(TRUE_POS, (5, 1)), q0)
+    bank.predict()
+    bank.update(TRUE_POS, TRUE_QUAT)
+    target_q = quat_multiply(q0, np.array([0.0, np.sin(0.1), 0.0, np.cos(0.1)]))
+    target_p = TRUE_POS + rng.normal(size=(5, 3))
+    bank.recentre(target_p, target_q)
+    pos, _, quat, _ = bank.estimates()
+    np.testing.assert_allclose(pos, target_p, atol=1e-12)
+    assert np.degrees(geodesic_angle(quat, target_q)).max() < 1e-6
+    bank.predict()  # still a valid filter
+    assert np.all(np.isfinite(bank.estimates()[2]))
+
+
+def test_variant_parsing_and_configuration():
+    assert parse_variant("c4n2") == ("C4", 2) and parse_variant("C5N10") == ("C5", 10)
+    for bad in ("C6N0", "C4", "C4N-1", "X4N2", "", "C4N2x"):
+        with pytest.raises(ValueError, match="CxNy"):
+            parse_variant(bad)
+    assert TrackerConfig(variant="C3").motion.rotation_filter == "ukf"
+    assert TrackerConfig(variant="C5").motion.rotation_filter == "ubigaf"
+    assert TrackerConfig.from_variant("C4N2").name == "C4N2"
+    for bad in ({"particles": 1}, {"boosted": 0}, {"metric": "sift"}, {"optimiser": "adam"}, {"variant": "C7"}):
+        with pytest.raises(ValueError):
+            TrackerConfig(**bad)
+
+
+def test_shipped_tracker_yaml_is_the_thesis_default(tmp_path):
+    assert load_tracker_config() == TrackerConfig()
+    bad = tmp_path / "tracker.yaml"
+    bad.write_text("tracker:\n  ros__parameters:\n    particels: 100\n")
+    with pytest.raises(ConfigError, match="particels"):
+        load_tracker_config(bad)
