@@ -9,7 +9,8 @@ def register(sub) -> None:
     p = sub.add_parser("evaluate", help="run tracker variants (CxNy) over a simulated bag; thesis-format tables")
     p.add_argument("--bag", type=Path, required=True, help="simulated rosbag2 folder (uav-landing simulate)")
     p.add_argument("--variants", default=DEFAULT_VARIANTS,
-                   help=f"comma-separated CxNy: combination 1-5 of Table 6.11, N PFO iterations (default: {DEFAULT_VARIANTS})")
+                   help="comma-separated CxNy: combination 1-5 of Table 6.11, N PFO iterations "
+                        f"(default: {DEFAULT_VARIANTS})")
     p.add_argument("--particles", type=int, default=100, help="particles M (default: 100)")
     p.add_argument("--metric", choices=("colour", "contour", "distance_transform"), default="colour",
                    help="likelihood metric (default: colour)")

@@ -218,9 +218,10 @@ class Tracker:
         if mixed is None:
             self.reset()
             return self._empty(stamp_ns, clock)
+        scores = np.full(len(mixed), np.nan)
         if self.filters is not None:
-            mixed = self._filter(mixed, clock)
-        w = evaluate(self.likelihood, mixed)
+            mixed, scores = self._filter(mixed, clock)
+        w = self._weights(mixed, scores)
         clock.lap("weighting")
         particles = self._resample(mixed, w)
         clock.lap("resampling")
@@ -243,7 +244,8 @@ class Tracker:
             if self.filters is not None:
                 self.filters.clear()
             return new
-        kept = self.particles.take(np.arange(min(len(self.particles), cfg.particles - (0 if new is None else len(new)))))
+        room = cfg.particles - (0 if new is None else len(new))
+        kept = self.particles.take(np.arange(min(len(self.particles), room)))
         if self.filters is None:  # C2: transition prior (5.2.2)
             kept = constant_velocity_prediction(kept, cfg.motion, self.rng)
         else:  # C3-C5: the carried filters predicted to t (5.2.3)
@@ -254,23 +256,34 @@ class Tracker:
         kept = ParticleSet(kept.pos, kept.quat, kept.vel, kept.omega, kept.weight)
         return kept if new is None else ParticleSet.concat([kept, new])
 
-    def _filter(self, mixed: ParticleSet, clock) -> ParticleSet:
+    def _filter(self, mixed: ParticleSet, clock) -> tuple[ParticleSet, np.ndarray]:
         """Step 2 (C3–C5): z_t = best-likelihood pose of the mix; the carried filters are updated
         with it. New boosted particles start a filter at their own pose: the thesis filters them
         too, but pulling a fresh hypothesis towards another one discards its own evidence (a wrong
-        z_t would drag every new particle off, and the filter could not recover)."""
-        if len(self.filters):
+        z_t would drag every new particle off, and the filter could not recover). Returns the
+        filtered set and the scores still valid for it (the new particles'; NaN elsewhere)."""
+        scores = np.full(len(mixed), np.nan)
+        carried = len(self.filters)
+        if carried:
             w = evaluate(self.likelihood, mixed)
-            best = int(np.argmax(w))
             clock.lap("measurement")
+            best = int(np.argmax(w))
             self.filters.update(mixed.pos[best], mixed.quat[best])
+            scores[carried:] = w[carried:]
         if self._fresh is not None:
             fresh = MotionBank(self.config.motion)
             fresh.init(self._fresh.pos, self._fresh.quat)
             self.filters.extend(fresh)
         pos, vel, quat, omega = self.filters.estimates()
         clock.lap("filtering")
-        return ParticleSet(pos, quat, vel, omega, np.full(len(pos), 1.0 / len(pos)))
+        return ParticleSet(pos, quat, vel, omega, np.full(len(pos), 1.0 / len(pos))), scores
+
+    def _weights(self, particles: ParticleSet, scores: np.ndarray) -> np.ndarray:
+        """Step 3's approximate weighting (§5.4.1): one batched score of the poses not yet scored."""
+        todo = np.flatnonzero(np.isnan(scores))
+        if todo.size:
+            scores[todo] = evaluate(self.likelihood, particles.take(todo))
+        return scores
 
     def _resample(self, particles: ParticleSet, w: np.ndarray) -> ParticleSet:
         """Step 3: App. B resampling back to the set's size; ``slot`` names each copy's filter."""
