@@ -91,11 +91,10 @@ def evaluate_bag(bag, variants, *, particles: int = 100, metric: str = "colour",
                  progress: bool = True) -> EvaluationResult:
     """Run ``variants`` (``CxNy`` names) over the simulated ``bag``; see the module docstring.
     Tracker settings other than variant, N, M, metric and seed come from ``base``."""
-    from ..boosting import HypothesisConfig, PoseDatabase, PoseHypothesisGenerator
+    from ..boosting import HypothesisConfig, PoseHypothesisGenerator
     from ..evaluation import pose_errors
     from ..model import fixed_wing_mesh
     from ..render import Renderer
-    from ..resources import model_path
     from ..sim import iter_frames, read_camera, read_poses
 
     if roi_source not in ROI_SOURCES:
@@ -109,12 +108,11 @@ def evaluate_bag(bag, variants, *, particles: int = 100, metric: str = "colour",
     rois = detector_rois(camera) if roi_source == "detector" else None
     vertices = fixed_wing_mesh("high").vertices
     maps = raw_camera.undistortion_maps()
-    database = PoseDatabase.load(model_path("pose_database.npz"), camera)
     base = TrackerConfig() if base is None else base
     configs = {n: replace(base, variant=c, iterations=k, particles=particles, metric=metric, seed=seed)
                for n, (c, k) in zip(names, map(parse_variant, names))}
-    boost = PoseHypothesisGenerator(database, camera, HypothesisConfig(particles=particles,
-                                                                       kept=particles - configs[names[0]].boosted))
+    boost = PoseHypothesisGenerator.from_config(
+        HypothesisConfig(particles=particles, kept=particles - configs[names[0]].boosted), camera)
     renderer = Renderer(camera, fixed_wing_mesh("low"), tile=configs[names[0]].tile, max_batch=max(512, particles))
     trackers = {n: Tracker(c, camera, renderer) for n, c in configs.items()}
     index = {int(s): i for i, s in enumerate(truth.stamps_ns)}
