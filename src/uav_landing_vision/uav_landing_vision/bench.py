@@ -10,7 +10,7 @@ def register(sub) -> None:
 def _run(args) -> int:
     from .filters import benchmark as filter_benchmark
     from .render import benchmark as render_benchmark
-    from .tracking import likelihood_benchmark
+    from .tracking import likelihood_benchmark, upf_benchmark
 
     if args.repeats < 1:
         raise SystemExit("--repeats must be at least 1")
@@ -21,4 +21,6 @@ def _run(args) -> int:
     print("\nMotion filters, one predict + update for a batch of 100:")
     for name, ms in filter_benchmark.run(m=100, repeats=10 * args.repeats).items():
         print(f"{name:>10} {ms:8.3f} ms")
+    print()
+    print(upf_benchmark.format_result(upf_benchmark.run()))
     return 0
