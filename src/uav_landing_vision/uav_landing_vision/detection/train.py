@@ -192,8 +192,10 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
 
     net = UavDetectorNet(cfg.width)
     optim = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-    sched = torch.optim.lr_scheduler.OneCycleLR(optim, cfg.lr, total_steps=cfg.epochs * len(train_loader),
-                                                pct_start=0.1)
+    total = cfg.epochs * len(train_loader)
+    warm = max(1, total // 20)
+    sched = torch.optim.lr_scheduler.LambdaLR(  # linear warm-up over 5 %, then cosine decay
+        optim, lambda k: (k + 1) / warm if k < warm else 0.5 * (1 + np.cos(np.pi * (k - warm) / max(1, total - warm))))
     log = {"config": asdict(cfg), "train_images": len(train_idx), "val_images": len(val_idx), "epochs": []}
     start_epoch, ckpt = 0, out / "last.pt"
     if resume:
