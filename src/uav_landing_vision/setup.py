@@ -28,6 +28,10 @@ setup(
         "console_scripts": [
             "uav-landing = uav_landing_vision.cli:main",
             "undistort = uav_landing_vision.nodes.undistort:main",
+            "detector = uav_landing_vision.nodes.detector:main",
+            "pose_boosting = uav_landing_vision.nodes.pose_boosting:main",
+            "tracker = uav_landing_vision.nodes.tracker:main",
+            "evaluator = uav_landing_vision.nodes.evaluator:main",
             "bag_player = uav_landing_vision.nodes.bag_player:main",
             "gcs_bridge = uav_landing_vision.nodes.gcs_bridge:main",
         ],

@@ -100,7 +100,7 @@ def test_a_node_that_fails_stops_the_graph_with_an_error(ros_domain_id, tmp_path
 
 def test_bad_requests_are_refused_before_anything_starts(ros_domain_id, tmp_path):
     for args, message in [
-        (["--nodes", "tracker"], "unknown node(s) ['tracker']"),
+        (["--nodes", "localiser"], "unknown node(s) ['localiser']"),
         (["--bag", str(tmp_path / "missing")], "does not exist"),
         (["--param", "undistort=linear"], "expected NODE:KEY=VALUE"),
     ]:

@@ -20,7 +20,7 @@ from launch_ros.actions import Node
 
 PACKAGE = "uav_landing_vision"
 # The graph without the player, in start order (as uav_landing_vision.graph.GRAPH_NODES).
-NODES = ("undistort", "gcs_bridge")
+NODES = ("undistort", "detector", "pose_boosting", "tracker", "gcs_bridge", "evaluator")
 PLAYER = "bag_player"
 
 

@@ -21,7 +21,11 @@ from pathlib import Path
 # config/<node>.yaml share the name).
 GRAPH_NODES = (
     "undistort",
+    "detector",
+    "pose_boosting",
+    "tracker",  # owns the process's only GL context
     "gcs_bridge",
+    "evaluator",  # writes its report when the graph stops (no ground truth: none)
     "bag_player",  # started last: it waits for its subscribers, then plays
 )
 PLAYER = "bag_player"

@@ -56,14 +56,23 @@ class LandingNode(Node):
             level[leaf] = value
         return nested
 
-    def load_config(self, cls):
+    def load_config(self, cls, group: str = "", exclude: tuple[str, ...] = ()):
         """Validate the parameters into dataclass ``cls`` (defaults fill what is not given), then
         declare the defaults that were not given so that every effective value is a parameter.
 
+        ``group`` validates only the parameters of that group (``node.*``); ``exclude`` leaves
+        groups out (a node whose core configuration and own settings share one parameter file).
         Raises :class:`ConfigError` naming the key of an unknown or invalid parameter.
         """
-        config = from_mapping(cls, self.parameter_mapping(), where=f"{self.get_name()} parameters")
-        for name, value in _flatten(dataclasses.asdict(config)):
+        mapping = self.parameter_mapping()
+        where = f"{self.get_name()} parameters"
+        if group:
+            mapping, where = mapping.get(group, {}), f"{where}.{group}"
+        for name in exclude:
+            mapping.pop(name, None)
+        config = from_mapping(cls, mapping, where=where)
+        prefix = f"{group}." if group else ""
+        for name, value in _flatten(dataclasses.asdict(config), prefix):
             if not self.has_parameter(name) and _is_parameter_value(value):
                 self.declare_parameter(name, list(value) if isinstance(value, tuple) else value)
         return config

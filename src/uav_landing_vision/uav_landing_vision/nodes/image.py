@@ -6,6 +6,7 @@ written. ``is_bigendian`` is read as the standard says, but it cannot change 8-b
 supported channel is one byte, so both byte orders give the same array.
 """
 
+import cv2
 import numpy as np
 from sensor_msgs.msg import Image
 
@@ -53,3 +54,12 @@ def numpy_to_image(pixels: np.ndarray, encoding: str, header) -> Image:
         step=width * channels,
         data=np.ascontiguousarray(pixels).tobytes(),
     )
+
+
+def image_to_rgb(msg: Image) -> np.ndarray:
+    """The pixels of an ``rgb8`` (as is) or ``bgr8`` (converted) image as RGB ``(H, W, 3)``;
+    :class:`ImageError` for other encodings (the detector and the colour metric need colour)."""
+    if msg.encoding not in ("rgb8", "bgr8"):
+        raise ImageError(f"image encoding '{msg.encoding}' has no colour (expected rgb8 or bgr8)")
+    pixels = image_to_numpy(msg)
+    return pixels if msg.encoding == "rgb8" else cv2.cvtColor(pixels, cv2.COLOR_BGR2RGB)

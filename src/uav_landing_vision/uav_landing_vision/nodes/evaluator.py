@@ -1,0 +1,137 @@
+"""``evaluator``: scores the tracked poses of a replayed sequence against its ground truth (§6.7).
+
+Subscribes ``uav/pose`` (PoseWithCovarianceStamped) and ``uav/ground_truth`` (PoseStamped),
+both reliable, and pairs them by exact ``header.stamp`` (``evaluation.align``); a ground-truth
+frame without a pose counts as lost. The report is written to ``out_dir`` when the node ends:
+
+- on shutdown (Ctrl-C, SIGTERM; e.g. when ``uav-landing graph`` stops after the bag), or
+- when done: ``frames`` > 0 ground-truth frames have been received and then ``settle_s``
+  seconds passed (for the last poses), or ``idle_timeout_s`` > 0 seconds passed without any
+  ground truth after the first. The node then exits with code 0.
+
+Report (``evaluation.write_report`` / ``make_summary``): ``tables.txt``, ``translation_error.csv``,
+``rotation_error.csv``, the two error plots (PNG), ``summary.json`` (the schema of every
+evaluation command, ``ms_per_frame`` null) and ``estimates.csv`` (the poses, for
+``uav-landing score``). Without any ground truth nothing is written (logged). Non-finite poses,
+non-unit quaternions and repeated stamps are logged, counted and dropped.
+"""
+
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import rclpy
+from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
+from rclpy.executors import ExternalShutdownException
+
+from ..evaluation import make_summary, save_summary, score, variant_summary, write_report
+from ..sim import Poses, write_pose_csv
+from .base import LandingNode, run_node, stamp_ns
+from .poses import pose_to_numpy
+from .qos import RELIABLE_QOS
+
+SPIN_S = 0.1
+
+
+@dataclass(frozen=True)
+class EvaluatorConfig:
+    out_dir: str = "out/evaluation"  # report folder (created); relative to the working directory
+    sequence: str = "sequence"  # name in the tables and the JSON summary
+    variant: str = "tracker"  # column name of the estimates (e.g. C4N2)
+    frames: int = 0  # > 0: done after this many ground-truth frames (+ settle_s); 0: until shutdown
+    settle_s: float = 2.0
+    idle_timeout_s: float = 0.0  # > 0: done after this long without ground truth; 0: off
+
+    def __post_init__(self):
+        if not self.out_dir or not self.sequence or not self.variant:
+            raise ValueError("out_dir, sequence and variant must not be empty")
+        if self.frames < 0 or self.settle_s < 0.0 or self.idle_timeout_s < 0.0:
+            raise ValueError("need frames >= 0, settle_s >= 0 and idle_timeout_s >= 0")
+
+
+class EvaluatorNode(LandingNode):
+    def __init__(self, **kwargs):
+        super().__init__("evaluator", **kwargs)
+        self.config = self.load_config(EvaluatorConfig)
+        self.truth: dict[int, tuple] = {}
+        self.estimates: dict[int, tuple] = {}
+        self._last_truth = None  # monotonic time of the last ground truth
+        self.report_dir: Path | None = None
+        self.create_subscription(PoseWithCovarianceStamped, "uav/pose", self._on_pose, RELIABLE_QOS)
+        self.create_subscription(PoseStamped, "uav/ground_truth", self._on_truth, RELIABLE_QOS)
+
+    def _store(self, into: dict, what: str, stamp: int, pose) -> bool:
+        try:
+            value = pose_to_numpy(pose)
+        except ValueError as exc:
+            self.drop(f"{what} rejected: {exc}")
+            return False
+        if stamp in into:
+            self.drop(f"{what}: a second message stamped {stamp} ns")
+            return False
+        into[stamp] = value
+        return True
+
+    def _on_pose(self, msg: PoseWithCovarianceStamped) -> None:
+        self.counters["received"] += 1
+        self._store(self.estimates, "uav/pose", stamp_ns(msg.header.stamp), msg.pose.pose)
+
+    def _on_truth(self, msg: PoseStamped) -> None:
+        self.counters["truth_received"] += 1
+        if self._store(self.truth, "uav/ground_truth", stamp_ns(msg.header.stamp), msg.pose):
+            self._last_truth = time.monotonic()
+
+    def done(self) -> bool:
+        """Whether the sequence is over by ``frames`` (+ ``settle_s``) or ``idle_timeout_s``."""
+        if self._last_truth is None:
+            return False
+        quiet_s = time.monotonic() - self._last_truth
+        cfg = self.config
+        return (0 < cfg.frames <= len(self.truth) and quiet_s >= cfg.settle_s) or (0 < cfg.idle_timeout_s <= quiet_s)
+
+    def write(self) -> Path | None:
+        """Write the report of what was received; its folder, or None without ground truth."""
+        cfg = self.config
+        if not self.truth:
+            self.get_logger().warn("no ground truth received: no report written")
+            return None
+        truth = _poses(self.truth)
+        estimates = _poses(self.estimates)
+        errors = score(truth, estimates)
+        out = Path(cfg.out_dir)
+        text = write_report(out, cfg.sequence, {cfg.variant: errors})
+        save_summary(out / "summary.json", make_summary(cfg.sequence, len(truth.stamps_ns), {cfg.variant: variant_summary(errors)}))
+        write_pose_csv(out / "estimates.csv", estimates)
+        matched = int(np.isfinite(errors["euclidean"]).sum())
+        self.counters["matched"] = matched
+        self.report_dir = out
+        self.get_logger().info(f"{len(truth.stamps_ns)} ground-truth frames, {matched} with a pose; report in {out}\n{text}")
+        return out
+
+
+def _poses(by_stamp: dict) -> Poses:
+    stamps = np.array(sorted(by_stamp), dtype=np.int64)
+    trans = np.array([by_stamp[s][0] for s in stamps]).reshape(-1, 3)
+    quat = np.array([by_stamp[s][1] for s in stamps]).reshape(-1, 4)
+    return Poses(stamps, trans, quat)
+
+
+def run_until_done(node: EvaluatorNode, executor) -> int:
+    """Spin until done or shut down, then write the report."""
+    try:
+        while rclpy.ok(context=node.context) and not node.done():
+            executor.spin_once(timeout_sec=SPIN_S)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    node.write()
+    return 0
+
+
+def main(args=None) -> int:
+    return run_node(EvaluatorNode, args, run=run_until_done)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,204 @@
+"""``tracker``: rectified frames + pose hypotheses → the UAV's pose (Algorithm 3, ``tracking.upf``).
+
+Subscribes ``camera/image_rect`` (rgb8 or bgr8), ``camera/camera_info_rect`` (the latest
+calibration is used) and ``uav/pose_hypotheses``. Publishes, with the image's header:
+
+- ``uav/pose`` (PoseWithCovarianceStamped, the UAV body in the camera optical frame) and
+  ``uav/particles`` (PoseArray, best first) — only for frames with an estimate: nothing is
+  published when the tracker has none (LOST, nothing scored), never a held pose;
+- ``uav/tracker_status`` (TrackerStatus: state, best likelihood, effective particle number,
+  milliseconds per stage) for every tracked frame — the acknowledgement ``bag_player`` paces on;
+- ``uav/overlay`` (rgb8) with ``node.overlay``: the frame with the estimate's silhouette outline.
+
+Matching: an image and its hypotheses are paired by exact ``header.stamp`` (either order,
+cache of ``node.cache_size`` stamps). An image waits at most ``node.hypotheses_timeout_s``
+for its hypotheses, then is tracked by prediction; frames are tracked in stamp order, so a
+frame whose successor is complete is tracked at once by prediction. Hypotheses without
+an image, late ones and malformed ones (non-finite, non-unit quaternion: the frame is then
+tracked by prediction at once) are logged, counted and dropped.
+
+Each message carries M hypotheses; the tracker takes the first ``Tracker.hypotheses_needed()``
+(M at (re)initialisation and in C1, M − M0 otherwise). This node owns the process's only
+moderngl context (its ``GL_RENDERER`` is logged at start-up). Parameters: the ``tracker``
+section of ``config/tracker.yaml`` (``TrackerConfig``) and the node's own under ``node``
+(given with ``-p node.overlay:=true`` or a second parameter file).
+"""
+
+import sys
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import cv2
+import numpy as np
+from geometry_msgs.msg import Pose, PoseArray, PoseWithCovarianceStamped
+from rclpy.clock import Clock, ClockType
+from sensor_msgs.msg import CameraInfo, Image
+from uav_landing_msgs.msg import PoseHypotheses, TrackerStatus
+
+from ..camera import CameraInfoError, camera_from_info_fields
+from ..config import ConfigError
+from ..model import fixed_wing_mesh
+from ..render import Renderer
+from ..render.context import gl_context
+from ..tracking.upf import Tracker, TrackerConfig
+from .base import LandingNode, run_node, stamp_ns
+from .image import ImageError, image_to_rgb, numpy_to_image
+from .poses import numpy_to_pose, pose_to_numpy
+from .qos import IMAGE_QOS, RELIABLE_QOS
+from .sync import StampCache
+
+DEADLINE_CHECK_S = 0.02
+OVERLAY_COLOUR = (0, 255, 0)
+
+
+@dataclass(frozen=True)
+class TrackerNodeConfig:
+    hypotheses_timeout_s: float = 1.0  # how long an image waits for its hypotheses
+    cache_size: int = 10  # unpaired stamps kept
+    overlay: bool = False  # publish uav/overlay
+
+    def __post_init__(self):
+        if not self.hypotheses_timeout_s > 0.0 or self.cache_size < 1:
+            raise ValueError("need hypotheses_timeout_s > 0 and cache_size >= 1")
+
+
+class BoostedPoses(NamedTuple):
+    """One PoseHypotheses message as the tracker core takes it: ``quats (k,4)``, ``positions (k,3)``."""
+
+    quats: np.ndarray
+    positions: np.ndarray
+
+
+class TrackerNode(LandingNode):
+    def __init__(self, **kwargs):
+        super().__init__("tracker", **kwargs)
+        self.config = self.load_config(TrackerConfig, exclude=("node",))
+        self.node_config = self.load_config(TrackerNodeConfig, group="node")
+        try:
+            ctx = gl_context()
+        except RuntimeError as exc:
+            raise ConfigError(f"OpenGL: {exc}") from exc
+        self.get_logger().info(f"GL_RENDERER: {ctx.info['GL_RENDERER']}; tracker {self.config.name}, M={self.config.particles}")
+        self._mesh = fixed_wing_mesh("low")
+        self._tracker = self._renderer = self._camera_key = None
+        self._last_stamp = -1
+        self._cache = StampCache(("image", "hypotheses"), self.node_config.cache_size)
+        self._pose_pub = self.create_publisher(PoseWithCovarianceStamped, "uav/pose", RELIABLE_QOS)
+        self._particles_pub = self.create_publisher(PoseArray, "uav/particles", RELIABLE_QOS)
+        self._status_pub = self.create_publisher(TrackerStatus, "uav/tracker_status", RELIABLE_QOS)
+        self._overlay_pub = self.create_publisher(Image, "uav/overlay", IMAGE_QOS) if self.node_config.overlay else None
+        self.create_subscription(CameraInfo, "camera/camera_info_rect", self._on_camera_info, IMAGE_QOS)
+        self.create_subscription(Image, "camera/image_rect", self._on_image, IMAGE_QOS)
+        self.create_subscription(PoseHypotheses, "uav/pose_hypotheses", self._on_hypotheses, RELIABLE_QOS)
+        self.create_timer(DEADLINE_CHECK_S, self._on_deadline, clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    def _on_camera_info(self, msg: CameraInfo) -> None:
+        key = (msg.width, msg.height, tuple(msg.k))
+        if key == self._camera_key:
+            return
+        try:
+            camera = camera_from_info_fields(msg.width, msg.height, msg.distortion_model, msg.d, msg.k, msg.r)
+        except CameraInfoError as exc:
+            self.drop(f"camera_info rejected: {exc}")
+            return
+        if self._tracker is not None:
+            self.get_logger().warn("the calibration changed: the track restarts")
+        self._camera_key = key
+        self._renderer = Renderer(camera, self._mesh, tile=self.config.tile, max_batch=max(512, self.config.particles))
+        self._tracker = Tracker(self.config, camera, self._renderer)
+        self.get_logger().info(f"calibration {msg.width}x{msg.height} fx={camera.fx:.1f}: tracker ready")
+
+    def _on_image(self, msg: Image) -> None:
+        self.counters["received"] += 1
+        stamp = stamp_ns(msg.header.stamp)
+        if stamp <= self._last_stamp:
+            self.drop(f"image stamped {stamp} ns is not after the last tracked frame ({self._last_stamp} ns)")
+            return
+        try:
+            frame = image_to_rgb(msg)
+        except ImageError as exc:
+            self.drop(str(exc))
+            return
+        self._add("image", stamp, (msg, frame))
+
+    def _on_hypotheses(self, msg: PoseHypotheses) -> None:
+        self.counters["hypotheses_received"] += 1
+        stamp = stamp_ns(msg.header.stamp)
+        if stamp <= self._last_stamp:
+            self.drop(f"hypotheses stamped {stamp} ns arrived after their frame was tracked")
+            return
+        try:
+            poses = [pose_to_numpy(p) for p in msg.poses]
+        except ValueError as exc:
+            self.drop(f"uav/pose_hypotheses rejected: {exc}")
+            poses = []
+        boosted = BoostedPoses(np.array([q for _, q in poses]), np.array([p for p, _ in poses])) if poses else None
+        self._add("hypotheses", stamp, boosted)
+
+    def _add(self, name: str, stamp: int, item) -> None:
+        entry, evicted = self._cache.add(name, stamp, item)
+        for old in evicted:
+            self._expire(old)
+        if entry is not None:
+            for old in self._cache.pop_older(stamp):
+                self._expire(old)
+            self._track(*entry.items["image"], entry.items["hypotheses"])
+
+    def _on_deadline(self) -> None:
+        for old in self._cache.pop_expired(self.node_config.hypotheses_timeout_s):
+            self._expire(old)
+
+    def _expire(self, entry) -> None:
+        """An entry that will not be completed: its image is tracked by prediction."""
+        if "image" in entry.items:
+            self.counters["without_hypotheses"] += 1
+            self._track(*entry.items["image"], None)
+        else:
+            self.drop(f"hypotheses stamped {entry.stamp_ns} ns have no image")
+
+    def _track(self, image: Image, frame: np.ndarray, boosted: BoostedPoses | None) -> None:
+        tracker = self._tracker
+        if tracker is None:
+            self.drop("image before any camera/camera_info_rect")
+            return
+        if (image.width, image.height) != (self._renderer.width, self._renderer.height):
+            self.drop(f"image is {image.width}x{image.height} but the calibration is {self._renderer.width}x{self._renderer.height}")
+            return
+        stamp = stamp_ns(image.header.stamp)
+        result = tracker.step(frame, stamp, boosted)
+        self._last_stamp = stamp
+        header = image.header
+        if result.has_pose:
+            pose = PoseWithCovarianceStamped(header=header)
+            numpy_to_pose(pose.pose.pose, result.position, result.quat)
+            pose.pose.covariance = result.covariance.ravel().tolist()
+            self._pose_pub.publish(pose)
+            self._particles_pub.publish(PoseArray(header=header, poses=[
+                numpy_to_pose(Pose(), p, q) for p, q in zip(result.particles.pos, result.particles.quat)
+            ]))
+            self.counters["published"] += 1
+        self._status_pub.publish(TrackerStatus(
+            header=header, state=int(result.state), best_likelihood=float(result.best_likelihood),
+            effective_particles=float(result.effective_particles),
+            stage_names=list(result.stage_ms), stage_ms=[float(v) for v in result.stage_ms.values()],
+        ))
+        self.counters["tracked"] += 1
+        if self._overlay_pub is not None:
+            self._overlay_pub.publish(numpy_to_image(self._overlay(frame, result), "rgb8", header))
+
+    def _overlay(self, frame: np.ndarray, result) -> np.ndarray:
+        """The frame with the outline of the model at the estimate (the plain frame without one)."""
+        out = frame.copy()
+        if result.has_pose:
+            mask = self._renderer.silhouette_full(result.quat, result.position).astype(np.uint8)
+            contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+            cv2.drawContours(out, contours, -1, OVERLAY_COLOUR, 1)
+        return out
+
+
+def main(args=None) -> int:
+    return run_node(TrackerNode, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
