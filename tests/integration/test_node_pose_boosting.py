@@ -1,0 +1,195 @@
+"""``pose_boosting`` in-process over DDS: rendered frame + detection → hypotheses; matching by
+stamp in either order; bad input dropped. Also the rendered scene ``test_node_tracker`` uses."""
+
+import functools
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import CameraInfo, Image, RegionOfInterest
+from test_node_common import camera_info_msg, image_msg, ros  # noqa: F401 (fixture)
+
+from uav_landing_msgs.msg import Detection, DetectionArray, PoseHypotheses
+from uav_landing_vision.boosting import DatabaseConfig, build_database
+from uav_landing_vision.boosting.database import NOMINAL_QUAT
+from uav_landing_vision.camera import CameraModel
+from uav_landing_vision.config import ConfigError
+from uav_landing_vision.geometry import euler_zyx_to_quat, quat_multiply
+from uav_landing_vision.model import fixed_wing_mesh
+from uav_landing_vision.nodes.base import stamp_ns
+from uav_landing_vision.nodes.pose_boosting import PoseBoostingNode
+from uav_landing_vision.nodes.qos import IMAGE_QOS, RELIABLE_QOS
+from uav_landing_vision.render import Renderer
+from uav_landing_vision.tracking.evaluate import oracle_roi
+
+PARAMS = Path(__file__).parents[2] / "config" / "pose_boosting.yaml"
+CAMERA = CameraModel(320, 240, [[280.0, 0, 160.0], [0, 280.0, 120.0], [0, 0, 1]])
+TRUE_QUAT = quat_multiply(euler_zyx_to_quat(np.radians([20.0, -15.0, 10.0])), NOMINAL_QUAT)
+SKY = np.broadcast_to(np.array([90, 140, 210], np.uint8), (240, 320, 3)).copy()
+M, M0 = 40, 30
+
+
+def true_position(k: int) -> np.ndarray:
+    """The UAV's position at frame k: 5 m ahead, drifting right and closer."""
+    return np.array([0.1 + 0.03 * k, -0.05, 5.0 - 0.05 * k])
+
+
+@functools.lru_cache(maxsize=None)
+def _renderer() -> Renderer:
+    return Renderer(CAMERA, fixed_wing_mesh("high"))
+
+
+def scene_frame(k: int) -> np.ndarray:
+    """Frame k: the shaded UAV at its true pose over a plain sky (rectified, rgb)."""
+    return _renderer().shaded(TRUE_QUAT, true_position(k), SKY)[0]
+
+
+def true_roi(k: int) -> tuple[int, int, int, int]:
+    return oracle_roi(CAMERA, fixed_wing_mesh("high").vertices, TRUE_QUAT, true_position(k))
+
+
+@pytest.fixture(scope="session")
+def small_database(tmp_path_factory) -> Path:
+    """A pose database for CAMERA (2000 renders within ±45° of the nominal attitude)."""
+    db = build_database(CAMERA, fixed_wing_mesh("high"), DatabaseConfig(count=2000, half_range_deg=(45.0, 45.0, 45.0)), progress=False)
+    return db.save(tmp_path_factory.mktemp("database") / "small.npz")
+
+
+def stamp(k: int) -> tuple[int, int]:
+    return divmod(1_000_000_000 + k * 33_000_000, 1_000_000_000)
+
+
+def detections_msg(k: int, boxes) -> DetectionArray:
+    msg = DetectionArray(detections=[
+        Detection(roi=RegionOfInterest(x_offset=x, y_offset=y, width=w, height=h), score=s) for x, y, w, h, s in boxes
+    ])
+    msg.header.stamp.sec, msg.header.stamp.nanosec = stamp(k)
+    msg.header.frame_id = "camera_optical_frame"
+    return msg
+
+
+class Rig:
+    def __init__(self, ros, database: Path, *overrides):
+        self.ros = ros
+        self.node = ros.add(PoseBoostingNode(
+            context=ros.context, cli_args=["--ros-args", "--params-file", str(PARAMS)],
+            parameter_overrides=[Parameter("database", value=str(database)), Parameter("particles", value=M),
+                                 Parameter("kept", value=M0), *overrides],
+        ))
+        self.info_pub = ros.probe.create_publisher(CameraInfo, "camera/camera_info_rect", IMAGE_QOS)
+        self.image_pub = ros.probe.create_publisher(Image, "camera/image_rect", IMAGE_QOS)
+        self.det_pub = ros.probe.create_publisher(DetectionArray, "uav/detections", RELIABLE_QOS)
+        self.out = ros.collect(PoseHypotheses, "uav/pose_hypotheses", RELIABLE_QOS)
+        assert ros.spin_until(lambda: all(p.get_subscription_count() for p in (self.info_pub, self.image_pub, self.det_pub))
+                              and self.node.count_subscribers("uav/pose_hypotheses") >= 1), "discovery"
+
+    def send_info(self, camera=CAMERA):
+        self.info_pub.publish(camera_info_msg(camera))
+        assert self.ros.spin_until(lambda: self.node._info_key is not None and self.node._info_key[2] == tuple(camera.K.ravel()))
+
+    def send(self, *msgs):
+        """Publish image and/or detection messages in order; wait until the node published or dropped."""
+        before = (self.node.counters["published"], self.node.counters["dropped"])
+        for msg in msgs:
+            (self.image_pub if isinstance(msg, Image) else self.det_pub).publish(msg)
+        assert self.ros.spin_until(lambda: (self.node.counters["published"], self.node.counters["dropped"]) != before)
+        if self.node.counters["published"] == before[0]:
+            return None
+        assert self.ros.spin_until(lambda: len(self.out) == self.node.counters["published"])
+        return self.out[-1]
+
+
+def frame_msg(k: int, encoding: str = "rgb8") -> Image:
+    pixels = scene_frame(k)
+    if encoding == "bgr8":
+        pixels = pixels[..., ::-1].copy()
+    return image_msg(pixels, encoding, *stamp(k))
+
+
+def test_hypotheses_from_the_best_detection_in_either_order(ros, small_database):
+    rig = Rig(ros, small_database)
+    rig.send_info()
+    decoy = (0, 0, 30, 20, 0.3)  # lower score: not used
+    for k, order in [(0, "image first"), (1, "detections first")]:
+        x, y, w, h = true_roi(k)
+        image, dets = frame_msg(k, "rgb8" if k == 0 else "bgr8"), detections_msg(k, [decoy, (x, y, w, h, 0.9)])
+        out = rig.send(*((image, dets) if order == "image first" else (dets, image)))
+        assert out is not None and out.header == image.header, order
+        assert len(out.poses) == len(out.distances) == M  # always M: the tracker takes what it needs
+        assert list(out.distances) == sorted(out.distances)
+        positions = np.array([[p.position.x, p.position.y, p.position.z] for p in out.poses])
+        quats = np.array([[p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w] for p in out.poses])
+        np.testing.assert_allclose(np.linalg.norm(quats, axis=1), 1.0, atol=1e-9)
+        assert np.linalg.norm(positions[0] - true_position(k)) < 1.0  # weak perspective from one box
+        obb = out.obb
+        assert x <= obb.center_x <= x + w and y <= obb.center_y <= y + h
+        assert obb.width >= obb.height > 0 and -math.pi / 2 <= obb.angle < math.pi / 2
+    assert rig.node.counters["dropped"] == 0
+
+
+def test_no_detection_gives_an_empty_hypotheses_message(ros, small_database):
+    rig = Rig(ros, small_database)
+    rig.send_info()
+    out = rig.send(frame_msg(2), detections_msg(2, []))
+    assert out is not None and stamp_ns(out.header.stamp) == stamp_ns(detections_msg(2, []).header.stamp)
+    assert len(out.poses) == 0 and len(out.distances) == 0 and out.obb.width == 0.0
+    assert rig.node.counters["without_hypotheses"] == 1 and rig.node.counters["dropped"] == 0
+
+
+def test_malformed_detections_and_images_are_dropped(ros, small_database):
+    rig = Rig(ros, small_database)
+    rig.send_info()
+    x, y, w, h = true_roi(3)
+    bad = [(10, 10, 0, 5, 0.99), (400, 300, 10, 10, 0.99), (x, y, w, h, float("nan"))]
+    out = rig.send(frame_msg(3), detections_msg(3, [*bad, (x, y, w, h, 0.6)]))
+    assert out is not None and len(out.poses) == M  # the usable detection is used
+    assert rig.node.counters["dropped"] == 3
+    assert "score nan" in rig.node.last_error
+    mono = image_msg(scene_frame(4)[..., 0].copy(), "mono8", *stamp(4))
+    assert rig.send(mono) is None and "has no colour" in rig.node.last_error
+    short = frame_msg(5)
+    short.data = bytes(10)
+    assert rig.send(short) is None and "image data has 10 bytes" in rig.node.last_error
+
+
+def test_unmatched_entries_older_than_the_cache_are_dropped(ros, small_database):
+    rig = Rig(ros, small_database, Parameter("node.cache_size", value=2))
+    rig.send_info()
+    for k in range(2):
+        rig.image_pub.publish(frame_msg(10 + k))
+    assert ros.spin_until(lambda: rig.node.counters["received"] == 2)
+    assert rig.send(detections_msg(20, [])) is None  # a third stamp evicts the oldest image
+    assert rig.node.last_error.startswith(f"no detections with stamp {stamp_ns(frame_msg(10).header.stamp)} ns")
+    out = rig.send(detections_msg(11, []))  # the image of stamp 11 is still there
+    assert out is not None and stamp_ns(out.header.stamp) == stamp_ns(frame_msg(11).header.stamp)
+
+
+def test_calibration_the_database_was_not_made_for_is_refused(ros, small_database):
+    rig = Rig(ros, small_database)
+    other = CameraModel(320, 240, [[300.0, 0, 160.0], [0, 300.0, 120.0], [0, 0, 1]])
+    rig.info_pub.publish(camera_info_msg(other))
+    assert ros.spin_until(lambda: rig.node.counters["dropped"] == 1)
+    assert "pose database was built for a camera" in rig.node.last_error
+    x, y, w, h = true_roi(0)
+    assert rig.send(frame_msg(0), detections_msg(0, [(x, y, w, h, 0.9)])) is None
+    assert "before a calibration the pose database matches" in rig.node.last_error
+    rig.send_info()
+    assert rig.send(frame_msg(1), detections_msg(1, [(*true_roi(1), 0.9)])) is not None
+
+
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        (Parameter("database", value="/nonexistent/db.npz"), "database: pose database /nonexistent/db.npz not found"),
+        (Parameter("kept", value=40), "need particles M >= 1 and 0 <= kept M0 < M"),
+        (Parameter("node.cache_size", value=0), "cache_size must be at least 1"),
+        (Parameter("fast.radius", value=3), r"unknown key\(s\) \['radius'\]"),
+    ],
+)
+def test_bad_parameters_fail_start_up(ros, override, message):
+    with pytest.raises(ConfigError, match=message):
+        overrides = {p.name: p for p in (Parameter("particles", value=M), Parameter("kept", value=M0), override)}
+        PoseBoostingNode(context=ros.context, cli_args=["--ros-args", "--params-file", str(PARAMS)],
+                         parameter_overrides=list(overrides.values()))
