@@ -1,0 +1,173 @@
+"""``tracker`` in-process over DDS on rendered frames with hypotheses from the boosting core:
+the pose converges, nothing is published without an estimate, bad input is dropped."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from geometry_msgs.msg import Pose, PoseArray, PoseWithCovarianceStamped
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import CameraInfo, Image
+from test_node_common import camera_info_msg, image_msg, ros  # noqa: F401 (fixture)
+from test_node_pose_boosting import (  # noqa: F401 (fixture)
+    CAMERA, M, M0, SKY, TRUE_QUAT, scene_frame, small_database, stamp, true_position, true_roi,
+)
+
+from uav_landing_msgs.msg import PoseHypotheses, TrackerStatus
+from uav_landing_vision.boosting import HypothesisConfig, PoseDatabase, PoseHypothesisGenerator
+from uav_landing_vision.config import ConfigError
+from uav_landing_vision.geometry import geodesic_angle
+from uav_landing_vision.nodes.base import stamp_ns
+from uav_landing_vision.nodes.image import image_to_numpy
+from uav_landing_vision.nodes.poses import numpy_to_pose, pose_to_numpy
+from uav_landing_vision.nodes.qos import IMAGE_QOS, RELIABLE_QOS
+from uav_landing_vision.nodes.tracker import TrackerNode
+from uav_landing_vision.tracking.upf import STAGES
+
+PARAMS = Path(__file__).parents[2] / "config" / "tracker.yaml"
+TIMEOUT_S = 0.3
+
+
+@pytest.fixture(scope="module")
+def generator(small_database):
+    return PoseHypothesisGenerator(PoseDatabase.load(small_database), CAMERA, HypothesisConfig(particles=M, kept=M0))
+
+
+def hypotheses_msg(k: int, poses=()) -> PoseHypotheses:
+    msg = PoseHypotheses(poses=[numpy_to_pose(Pose(), p, q) for p, q in poses])
+    msg.header.stamp.sec, msg.header.stamp.nanosec = stamp(k)
+    msg.header.frame_id = "camera_optical_frame"
+    return msg
+
+
+def boosted_msg(generator, k: int) -> PoseHypotheses:
+    """What pose_boosting publishes for frame k with the true ROI: M poses, best first."""
+    hyps = generator.generate(scene_frame(k), true_roi(k), count=M)
+    return hypotheses_msg(k, zip(hyps.positions, hyps.quats / np.linalg.norm(hyps.quats, axis=1, keepdims=True)))
+
+
+class Rig:
+    def __init__(self, ros, *overrides):
+        self.ros = ros
+        self.node = ros.add(TrackerNode(
+            context=ros.context, cli_args=["--ros-args", "--params-file", str(PARAMS)],
+            parameter_overrides=[Parameter("particles", value=M), Parameter("boosted", value=M - M0),
+                                 Parameter("node.hypotheses_timeout_s", value=TIMEOUT_S), *overrides],
+        ))
+        self.info_pub = ros.probe.create_publisher(CameraInfo, "camera/camera_info_rect", IMAGE_QOS)
+        self.image_pub = ros.probe.create_publisher(Image, "camera/image_rect", IMAGE_QOS)
+        self.hyp_pub = ros.probe.create_publisher(PoseHypotheses, "uav/pose_hypotheses", RELIABLE_QOS)
+        self.poses = ros.collect(PoseWithCovarianceStamped, "uav/pose", RELIABLE_QOS)
+        self.particles = ros.collect(PoseArray, "uav/particles", RELIABLE_QOS)
+        self.status = ros.collect(TrackerStatus, "uav/tracker_status", RELIABLE_QOS)
+        self.overlay = ros.collect(Image, "uav/overlay", IMAGE_QOS)
+        outputs = ["uav/pose", "uav/particles", "uav/tracker_status"] + (["uav/overlay"] if self.node.node_config.overlay else [])
+        assert ros.spin_until(lambda: all(p.get_subscription_count() for p in (self.info_pub, self.image_pub, self.hyp_pub))
+                              and all(self.node.count_subscribers(t) >= 1 for t in outputs)), "discovery"
+
+    def send_info(self):
+        self.info_pub.publish(camera_info_msg(CAMERA))
+        assert self.ros.spin_until(lambda: self.node._tracker is not None)
+
+    def status_of(self, k: int):
+        return next((s for s in self.status if stamp_ns(s.header.stamp) == stamp_ns(hypotheses_msg(k).header.stamp)), None)
+
+    def send(self, k: int, *msgs):
+        """Publish the messages of frame k in order; the frame's status once tracked, or None if dropped."""
+        dropped = self.node.counters["dropped"]
+        for msg in msgs:
+            (self.image_pub if isinstance(msg, Image) else self.hyp_pub).publish(msg)
+        assert self.ros.spin_until(lambda: self.status_of(k) is not None or self.node.counters["dropped"] > dropped)
+        return self.status_of(k)
+
+    def pose_of(self, k: int):
+        return next((p for p in self.poses if stamp_ns(p.header.stamp) == stamp_ns(hypotheses_msg(k).header.stamp)), None)
+
+
+def frame_msg(k: int, pixels=None) -> Image:
+    return image_msg(scene_frame(k) if pixels is None else pixels, "rgb8", *stamp(k))
+
+
+def test_pose_converges_on_rendered_frames_with_boosted_hypotheses(ros, generator):
+    rig = Rig(ros, Parameter("node.overlay", value=True))
+    rig.send_info()
+    frames = 6
+    for k in range(frames):
+        image, hyps = frame_msg(k), boosted_msg(generator, k)
+        status = rig.send(k, *((image, hyps) if k % 2 else (hyps, image)))  # both orders of arrival
+        assert status is not None and status.header == image.header
+    assert rig.node.counters["without_hypotheses"] == 0 and rig.node.counters["dropped"] == 0
+    assert ros.spin_until(lambda: len(rig.poses) == frames and len(rig.particles) == frames and len(rig.overlay) == frames)
+    last = rig.poses[-1]
+    assert last.header == frame_msg(frames - 1).header
+    position, quat = pose_to_numpy(last.pose.pose)
+    assert np.linalg.norm(position - true_position(frames - 1)) < 0.5
+    assert np.degrees(geodesic_angle(quat, TRUE_QUAT)) < 20.0
+    cov = np.array(last.pose.covariance).reshape(6, 6)
+    assert np.all(np.isfinite(cov)) and np.all(np.diag(cov) > 0)
+    assert len(rig.particles[-1].poses) == M and rig.particles[-1].header == last.header
+    status = rig.status[-1]
+    assert status.state in (TrackerStatus.ACQUIRING, TrackerStatus.TRACKING) and 0 < status.best_likelihood <= 1
+    assert list(status.stage_names) == list(STAGES) and len(status.stage_ms) == len(STAGES)
+    assert 1.0 <= status.effective_particles <= M
+    overlay = image_to_numpy(rig.overlay[-1])
+    assert overlay.shape == (240, 320, 3) and (overlay == (0, 255, 0)).all(axis=2).sum() > 20  # outline drawn
+
+
+def test_nothing_is_published_on_pose_without_an_estimate(ros, generator):
+    rig = Rig(ros)
+    rig.send_info()
+    # No hypotheses ever: each frame waits TIMEOUT_S, is tracked by prediction, and there is nothing.
+    status = rig.send(0, frame_msg(0))
+    assert status.state == TrackerStatus.LOST and rig.node.counters["without_hypotheses"] == 1
+    assert rig.send(1, frame_msg(1), hypotheses_msg(1)).state == TrackerStatus.LOST  # empty hypotheses
+    status = rig.send(2, frame_msg(2), boosted_msg(generator, 2))
+    assert status.state == TrackerStatus.ACQUIRING and ros.spin_until(lambda: rig.pose_of(2) is not None)
+    # The UAV leaves the frame: the particles score nothing, so there is no estimate to publish.
+    assert rig.send(3, frame_msg(3, SKY), hypotheses_msg(3)).state != TrackerStatus.LOST
+    assert rig.send(4, frame_msg(4, SKY)) is not None
+    assert rig.node.counters["tracked"] == 5 and rig.node.counters["published"] == 1  # one pose: frame 2's
+    assert [stamp_ns(p.header.stamp) for p in rig.poses] == [stamp_ns(frame_msg(2).header.stamp)]
+
+
+def test_malformed_input_is_dropped_and_tracking_goes_on(ros, generator):
+    rig = Rig(ros)
+    assert rig.send(0, frame_msg(0), boosted_msg(generator, 0)) is None
+    assert rig.node.last_error == "image before any camera/camera_info_rect"
+    rig.send_info()
+    bad = boosted_msg(generator, 1)
+    bad.poses[3].orientation.w = 3.0
+    rig.send(1, frame_msg(1), bad)
+    assert "pose quaternion is not a finite unit" in rig.node.last_error
+    assert ros.spin_until(lambda: rig.status_of(1) is not None)  # tracked at once, by prediction
+    nan = boosted_msg(generator, 2)
+    nan.poses[0].position.x = float("nan")
+    rig.send(2, nan, frame_msg(2))
+    assert "pose position is not finite" in rig.node.last_error
+    mono = image_msg(scene_frame(3)[..., 0].copy(), "mono8", *stamp(3))
+    assert rig.send(3, mono) is None and "has no colour" in rig.node.last_error
+    small = image_msg(np.zeros((30, 40, 3), np.uint8), "rgb8", *stamp(4))
+    assert rig.send(4, small, hypotheses_msg(4)) is None and "image is 40x30" in rig.node.last_error
+    dropped = rig.node.counters["dropped"]
+    rig.hyp_pub.publish(boosted_msg(generator, 5))  # hypotheses whose image never comes
+    assert ros.spin_until(lambda: rig.node.counters["dropped"] > dropped)
+    assert rig.node.last_error.endswith("have no image")
+    rig.hyp_pub.publish(boosted_msg(generator, 2))  # late: frame 2 was tracked
+    assert ros.spin_until(lambda: rig.node.counters["dropped"] > dropped + 1)
+    assert "arrived after their frame was tracked" in rig.node.last_error
+    assert rig.send(6, frame_msg(6), boosted_msg(generator, 6)).state != TrackerStatus.LOST
+    assert ros.spin_until(lambda: rig.pose_of(6) is not None)
+
+
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        (Parameter("variant", value="C9"), "variant must be one of"),
+        (Parameter("node.hypotheses_timeout_s", value=0.0), "need hypotheses_timeout_s > 0"),
+        (Parameter("node.overlay", value="yes"), "node.overlay: expected bool"),
+        (Parameter("node.colour", value=1), r"unknown key\(s\) \['colour'\]"),
+    ],
+)
+def test_bad_parameters_fail_start_up(ros, override, message):
+    with pytest.raises(ConfigError, match=message):
+        TrackerNode(context=ros.context, cli_args=["--ros-args", "--params-file", str(PARAMS)], parameter_overrides=[override])
