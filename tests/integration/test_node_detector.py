@@ -1,0 +1,149 @@
+"""``detector``: refuses to start without a model; with a freshly initialised network exported to
+ONNX it runs in-process over DDS and publishes well-formed DetectionArray messages."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from geometry_msgs.msg import PoseWithCovarianceStamped
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import CameraInfo, Image
+from test_node_common import camera_info_msg, image_msg, rgb_frame, ros  # noqa: F401 (fixture)
+
+from uav_landing_msgs.msg import DetectionArray
+from uav_landing_vision.camera import CameraModel
+from uav_landing_vision.config import ConfigError
+from uav_landing_vision.nodes import detector as detector_module
+from uav_landing_vision.nodes.detector import DetectorNode
+from uav_landing_vision.nodes.qos import IMAGE_QOS, RELIABLE_QOS
+
+PARAMS = Path(__file__).parents[2] / "config" / "detector.yaml"
+CAMERA = CameraModel(96, 64, [[80.0, 0, 48.0], [0, 80.0, 32.0], [0, 0, 1]])
+MAX_DETECTIONS = 5
+
+
+@pytest.fixture(scope="module")
+def model(tmp_path_factory) -> Path:
+    """A freshly initialised (untrained) detector network exported as the runtime expects it."""
+    import torch  # development extras (requirements-dev)
+
+    from uav_landing_vision.detection.export import export_onnx
+    from uav_landing_vision.detection.network import UavDetectorNet
+
+    torch.manual_seed(0)
+    return export_onnx(UavDetectorNet(width=8, blocks=(1, 1, 1)), tmp_path_factory.mktemp("model") / "fresh.onnx", (96, 64))
+
+
+class Rig:
+    def __init__(self, ros, model: Path, *overrides):
+        self.ros = ros
+        # An untrained network scores every cell near its 0.01 prior: a low threshold keeps some.
+        self.node = ros.add(DetectorNode(
+            context=ros.context, cli_args=["--ros-args", "--params-file", str(PARAMS)],
+            parameter_overrides=[Parameter("model", value=str(model)), Parameter("score_threshold", value=0.005),
+                                 Parameter("max_detections", value=MAX_DETECTIONS), *overrides],
+        ))
+        self.image_pub = ros.probe.create_publisher(Image, "camera/image_rect", IMAGE_QOS)
+        self.out = ros.collect(DetectionArray, "uav/detections", RELIABLE_QOS)
+        assert ros.spin_until(lambda: self.image_pub.get_subscription_count() and self.node.count_subscribers("uav/detections")), "discovery"
+
+    def send(self, msg):
+        """Publish one image; its DetectionArray, or None when the node dropped it."""
+        before = (self.node.counters["published"], self.node.counters["dropped"])
+        self.image_pub.publish(msg)
+        assert self.ros.spin_until(lambda: (self.node.counters["published"], self.node.counters["dropped"]) != before)
+        if self.node.counters["published"] == before[0]:
+            return None
+        assert self.ros.spin_until(lambda: len(self.out) == self.node.counters["published"])
+        return self.out[-1]
+
+
+def _check(out, image):
+    assert out.header == image.header
+    assert 1 <= len(out.detections) <= MAX_DETECTIONS
+    scores = [d.score for d in out.detections]
+    assert scores == sorted(scores, reverse=True) and all(0.005 <= s <= 1.0 for s in scores)
+    for d in out.detections:
+        r = d.roi
+        assert r.width > 0 and r.height > 0
+        assert 0 <= r.x_offset and r.x_offset + r.width <= image.width
+        assert 0 <= r.y_offset and r.y_offset + r.height <= image.height
+
+
+def test_start_up_fails_clearly_without_a_model(ros, tmp_path):
+    missing = tmp_path / "detector.onnx"
+    with pytest.raises(ConfigError, match=r"model: the detector model '.*detector.onnx' is missing .*uav-landing train-detector"):
+        DetectorNode(context=ros.context, parameter_overrides=[Parameter("model", value=str(missing))])
+    not_onnx = tmp_path / "bogus.onnx"
+    not_onnx.write_bytes(b"not a model")
+    with pytest.raises(ConfigError, match="model: the detector model '.*bogus.onnx' cannot be loaded"):
+        DetectorNode(context=ros.context, parameter_overrides=[Parameter("model", value=str(not_onnx))])
+
+
+def test_main_exits_with_code_2_naming_the_missing_model(tmp_path, capsys, ros_domain_id, monkeypatch):
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(ros_domain_id))
+    code = detector_module.main(["--ros-args", "-p", f"model:={tmp_path / 'none.onnx'}"])
+    assert code == 2 and "none.onnx' is missing" in capsys.readouterr().err
+
+
+def test_runs_the_network_and_publishes_well_formed_detections(ros, model):
+    rig = Rig(ros, model)
+    for i, encoding in enumerate(["rgb8", "bgr8"]):
+        image = image_msg(rgb_frame(CAMERA, i), encoding, sec=3, nanosec=i)
+        _check(rig.send(image), image)
+    assert rig.node.counters["detections"] >= 2
+
+
+def test_malformed_images_are_dropped_and_the_node_keeps_working(ros, model):
+    rig = Rig(ros, model)
+    mono = image_msg(rgb_frame(CAMERA)[..., 0].copy(), "mono8")
+    assert rig.send(mono) is None and "has no colour" in rig.node.last_error
+    short = image_msg(rgb_frame(CAMERA), "rgb8")
+    short.data = bytes(7)
+    assert rig.send(short) is None and "image data has 7 bytes" in rig.node.last_error
+    assert rig.send(Image(encoding="rgb8")) is None and "empty image" in rig.node.last_error
+    image = image_msg(rgb_frame(CAMERA, 5), "rgb8", sec=9)
+    _check(rig.send(image), image)
+    assert rig.node.counters["dropped"] == 3
+
+
+def test_search_window_from_the_last_pose(ros, model):
+    rig = Rig(ros, model, Parameter("node.search_window", value=True), Parameter("window_min_px", value=32),
+              Parameter("window_grow", value=1.0))
+    info_pub = ros.probe.create_publisher(CameraInfo, "camera/camera_info_rect", IMAGE_QOS)
+    pose_pub = ros.probe.create_publisher(PoseWithCovarianceStamped, "uav/pose", RELIABLE_QOS)
+    assert ros.spin_until(lambda: info_pub.get_subscription_count() and pose_pub.get_subscription_count())
+    image = image_msg(rgb_frame(CAMERA, 1), "rgb8", sec=5)
+    _check(rig.send(image), image)  # no pose yet: full frame
+    assert rig.node.counters["windowed"] == 0
+    info_pub.publish(camera_info_msg(CAMERA, sec=5))
+    pose = PoseWithCovarianceStamped(header=image.header)
+    pose.pose.pose.position.z, pose.pose.pose.orientation.w = 8.0, 1.0
+    pose_pub.publish(pose)
+    assert ros.spin_until(lambda: rig.node._camera is not None and rig.node._pose is not None)
+    later = image_msg(rgb_frame(CAMERA, 2), "rgb8", sec=5, nanosec=33_000_000)
+    _check(rig.send(later), later)
+    assert rig.node.counters["windowed"] == 1
+    stale = image_msg(rgb_frame(CAMERA, 3), "rgb8", sec=7)  # 2 s after the pose: full frame
+    _check(rig.send(stale), stale)
+    assert rig.node.counters["windowed"] == 1
+    bad = PoseWithCovarianceStamped(header=image.header)
+    bad.pose.pose.orientation.w = float("nan")
+    dropped = rig.node.counters["dropped"]
+    pose_pub.publish(bad)
+    assert ros.spin_until(lambda: rig.node.counters["dropped"] > dropped)
+    assert "uav/pose rejected: pose quaternion is not a finite unit" in rig.node.last_error
+
+
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        (Parameter("score_threshold", value=1.5), "score_threshold must be in"),
+        (Parameter("node.window_max_age_s", value=-1.0), "window_max_age_s must be > 0"),
+        (Parameter("node.search_window", value="on"), "node.search_window: expected bool"),
+        (Parameter("stride", value=8), r"unknown key\(s\) \['stride'\]"),
+    ],
+)
+def test_bad_parameters_fail_start_up(ros, override, message):
+    with pytest.raises(ConfigError, match=message):
+        DetectorNode(context=ros.context, cli_args=["--ros-args", "--params-file", str(PARAMS)], parameter_overrides=[override])
