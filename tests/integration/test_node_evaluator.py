@@ -1,0 +1,134 @@
+"""``evaluator``: poses matched to ground truth by stamp → the thesis-format report, when done
+(frame count) in-process and on SIGINT as a process; lost frames and bad poses."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
+from rclpy.duration import Duration
+from rclpy.parameter import Parameter
+from test_node_common import ros  # noqa: F401 (fixture)
+
+from uav_landing_vision.config import ConfigError
+from uav_landing_vision.nodes.evaluator import EvaluatorNode, run_until_done
+from uav_landing_vision.nodes.poses import numpy_to_pose
+from uav_landing_vision.nodes.qos import RELIABLE_QOS
+from uav_landing_vision.sim import read_pose_csv
+
+REPO = Path(__file__).parents[2]
+PARAMS = REPO / "config" / "evaluator.yaml"
+QUAT = np.array([0.0, 0.0, 0.0, 1.0])
+REPORT_FILES = {"tables.txt", "translation_error.csv", "rotation_error.csv", "translation_error.png",
+                "rotation_error.png", "summary.json", "estimates.csv"}
+
+
+def truth_msg(k: int) -> PoseStamped:
+    msg = PoseStamped()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = 1, k * 33_000_000
+    numpy_to_pose(msg.pose, [0.0, 0.0, 10.0 - k], QUAT)
+    return msg
+
+
+def pose_msg(k: int, error_m: float = 0.1, quat=QUAT) -> PoseWithCovarianceStamped:
+    msg = PoseWithCovarianceStamped(header=truth_msg(k).header)
+    numpy_to_pose(msg.pose.pose, [error_m, 0.0, 10.0 - k], quat)
+    return msg
+
+
+class Rig:
+    def __init__(self, ros, tmp_path, *overrides):
+        self.ros = ros
+        self.node = ros.add(EvaluatorNode(
+            context=ros.context, cli_args=["--ros-args", "--params-file", str(PARAMS)],
+            parameter_overrides=[Parameter("out_dir", value=str(tmp_path / "report")), Parameter("sequence", value="seq"),
+                                 Parameter("variant", value="C4N2"), *overrides],
+        ))
+        self.truth_pub = ros.probe.create_publisher(PoseStamped, "uav/ground_truth", RELIABLE_QOS)
+        self.pose_pub = ros.probe.create_publisher(PoseWithCovarianceStamped, "uav/pose", RELIABLE_QOS)
+        assert ros.spin_until(lambda: self.truth_pub.get_subscription_count() and self.pose_pub.get_subscription_count())
+
+
+def test_report_when_the_frame_count_is_reached_lost_frames_counted(ros, tmp_path):
+    rig = Rig(ros, tmp_path, Parameter("frames", value=5), Parameter("settle_s", value=0.2))
+    for k in range(5):
+        rig.truth_pub.publish(truth_msg(k))
+        if k != 2:  # frame 2: no pose, i.e. lost
+            rig.pose_pub.publish(pose_msg(k, error_m=0.1 * (k + 1)))
+    rig.pose_pub.publish(pose_msg(2, quat=[0.0, 0.0, 0.0, 2.0]))  # non-unit: dropped, stays lost
+    rig.pose_pub.publish(pose_msg(4, error_m=9.0))  # a second pose for frame 4: dropped
+    rig.pose_pub.publish(pose_msg(7))  # no ground truth for it: not scored
+    assert run_until_done(rig.node, ros.executor) == 0
+    node = rig.node
+    assert (node.counters["received"], node.counters["truth_received"], node.counters["dropped"]) == (7, 5, 2)
+    out = tmp_path / "report"
+    assert {p.name for p in out.iterdir()} == REPORT_FILES
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["sequence"] == "seq" and summary["frames"] == 5
+    c4 = summary["variants"]["C4N2"]
+    assert c4["lost_frames_pct"] == pytest.approx(20.0) and c4["ms_per_frame"] is None
+    assert c4["translation_m"]["mae"] == pytest.approx(np.mean([0.1, 0.2, 0.4, 0.5]))
+    assert c4["rotation_deg"]["mae"] == pytest.approx(0.0, abs=1e-3)
+    assert "seq: translation error (m)" in (out / "tables.txt").read_text()
+    assert len(read_pose_csv(out / "estimates.csv").stamps_ns) == 5  # frames 0, 1, 3, 4, 7
+
+
+def test_without_ground_truth_no_report(ros, tmp_path):
+    rig = Rig(ros, tmp_path, Parameter("idle_timeout_s", value=0.1))
+    assert not rig.node.done()  # the idle timeout counts from the first ground truth
+    assert rig.node.write() is None and not (tmp_path / "report").exists()
+
+
+def test_idle_timeout_ends_the_sequence(ros, tmp_path):
+    rig = Rig(ros, tmp_path, Parameter("idle_timeout_s", value=0.2))
+    rig.truth_pub.publish(truth_msg(0))
+    assert ros.spin_until(lambda: rig.node.counters["truth_received"] == 1)
+    assert run_until_done(rig.node, ros.executor) == 0
+    summary = json.loads((tmp_path / "report" / "summary.json").read_text())
+    assert summary["frames"] == 1 and summary["variants"]["C4N2"]["lost_frames_pct"] == 100.0
+
+
+def test_sigint_writes_the_report_and_exits_cleanly(ros, ros_domain_id, tmp_path):
+    env = dict(os.environ, ROS_DOMAIN_ID=str(ros_domain_id), PYTHONUNBUFFERED="1")
+    log = tmp_path / "evaluator.log"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "uav_landing_vision.nodes.evaluator", "--ros-args", "--params-file", str(PARAMS),
+         "-p", f"out_dir:={tmp_path / 'report'}"],
+        env=env, stdout=log.open("w"), stderr=subprocess.STDOUT,
+    )
+    try:
+        truth_pub = ros.probe.create_publisher(PoseStamped, "uav/ground_truth", RELIABLE_QOS)
+        pose_pub = ros.probe.create_publisher(PoseWithCovarianceStamped, "uav/pose", RELIABLE_QOS)
+        assert ros.spin_until(lambda: (truth_pub.get_subscription_count() and pose_pub.get_subscription_count()) or proc.poll() is not None)
+        for k in range(3):
+            truth_pub.publish(truth_msg(k))
+            pose_pub.publish(pose_msg(k))
+        assert truth_pub.wait_for_all_acked(Duration(seconds=30)) and pose_pub.wait_for_all_acked(Duration(seconds=30))
+        proc.send_signal(signal.SIGINT)
+        code = proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    output = log.read_text()
+    assert code == 0, output
+    summary = json.loads((tmp_path / "report" / "summary.json").read_text())
+    assert summary["frames"] == 3 and summary["variants"]["tracker"]["lost_frames_pct"] == 0.0, output
+    assert "3 ground-truth frames, 3 with a pose" in output
+
+
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        (Parameter("frames", value=-1), "need frames >= 0"),
+        (Parameter("out_dir", value=""), "out_dir, sequence and variant must not be empty"),
+        (Parameter("topic", value="x"), r"unknown key\(s\) \['topic'\]"),
+    ],
+)
+def test_bad_parameters_fail_start_up(ros, override, message):
+    with pytest.raises(ConfigError, match=message):
+        EvaluatorNode(context=ros.context, cli_args=["--ros-args", "--params-file", str(PARAMS)], parameter_overrides=[override])
