@@ -13,7 +13,10 @@ Modes (parameter ``mode``):
   previous one is acknowledged: a message on ``ack_topic`` (type ``ack_type``, any message
   with a header) carries its ``header.stamp``. The downstream then never has more than one
   frame in flight and drops none. After ``ack_timeout_s`` without it the frame counts as an
-  ack timeout (logged, on ``/diagnostics``) and playback goes on.
+  ack timeout (logged, on ``/diagnostics``) and playback goes on. The default acknowledgement
+  is ``camera/image_rect`` (undistort); ``ack_topic: uav/tracker_status`` with
+  ``ack_type: uav_landing_msgs/msg/TrackerStatus`` paces on the whole pipeline (the tracker
+  publishes one status per tracked frame, with its stamp, estimate or not).
 
 Before playing, the player waits (up to ``ready_timeout_s``) until every topic of
 ``ready_topics`` has a subscriber and a publisher and, in paced mode, until ``pace_topic``
