@@ -3,7 +3,6 @@ ONNX it runs in-process over DDS and publishes well-formed DetectionArray messag
 
 from pathlib import Path
 
-import numpy as np
 import pytest
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from rclpy.parameter import Parameter
