@@ -119,7 +119,7 @@ def test_search_window_from_the_last_pose(ros, model):
     pose = PoseWithCovarianceStamped(header=image.header)
     pose.pose.pose.position.z, pose.pose.pose.orientation.w = 8.0, 1.0
     pose_pub.publish(pose)
-    assert ros.spin_until(lambda: rig.node._camera is not None and rig.node._pose is not None)
+    assert ros.spin_until(lambda: rig.node._calibration.camera is not None and rig.node._pose is not None)
     later = image_msg(rgb_frame(CAMERA, 2), "rgb8", sec=5, nanosec=33_000_000)
     _check(rig.send(later), later)
     assert rig.node.counters["windowed"] == 1

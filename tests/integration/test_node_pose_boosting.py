@@ -87,7 +87,9 @@ class Rig:
 
     def send_info(self, camera=CAMERA):
         self.info_pub.publish(camera_info_msg(camera))
-        assert self.ros.spin_until(lambda: self.node._info_key is not None and self.node._info_key[2] == tuple(camera.K.ravel()))
+        assert self.ros.spin_until(
+            lambda: self.node._calibration.camera is not None and np.array_equal(self.node._calibration.camera.K, camera.K)
+        )
 
     def send(self, *msgs):
         """Publish image and/or detection messages in order; wait until the node published or dropped."""

@@ -21,12 +21,13 @@ from geometry_msgs.msg import PoseWithCovarianceStamped
 from sensor_msgs.msg import CameraInfo, Image, RegionOfInterest
 from uav_landing_msgs.msg import Detection, DetectionArray
 
-from ..camera import CameraInfoError, camera_from_info_fields
+from ..camera import CameraInfoError
 from ..config import ConfigError
 from ..detection.detector import Detector, DetectorConfig, search_window
 from ..model import fixed_wing_mesh
 from ..tracking.evaluate import oracle_roi
 from .base import LandingNode, run_node, stamp_ns
+from .calibration import Calibration
 from .image import ImageError, image_to_rgb
 from .poses import pose_to_numpy
 from .qos import IMAGE_QOS, RELIABLE_QOS
@@ -56,7 +57,7 @@ class DetectorNode(LandingNode):
         self._detector = _load_detector(self.config)
         self._pub = self.create_publisher(DetectionArray, "uav/detections", RELIABLE_QOS)
         self.create_subscription(Image, "camera/image_rect", self._on_image, IMAGE_QOS)
-        self._camera = self._pose = None
+        self._calibration, self._pose = Calibration(), None
         if self.node_config.search_window:
             self._vertices = fixed_wing_mesh("high").vertices
             self.create_subscription(CameraInfo, "camera/camera_info_rect", self._on_camera_info, IMAGE_QOS)
@@ -68,7 +69,7 @@ class DetectorNode(LandingNode):
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
         try:
-            self._camera = camera_from_info_fields(msg.width, msg.height, msg.distortion_model, msg.d, msg.k, msg.r)
+            self._calibration.update(msg)
         except CameraInfoError as exc:
             self.drop(f"camera_info rejected: {exc}")
 
@@ -82,7 +83,7 @@ class DetectorNode(LandingNode):
 
     def _window(self, image_stamp_ns: int, width: int, height: int):
         """The search window around the last pose, or None (full frame)."""
-        camera, pose = self._camera, self._pose
+        camera, pose = self._calibration.camera, self._pose
         if camera is None or pose is None or (camera.width, camera.height) != (width, height):
             return None
         age_s = (image_stamp_ns - pose[0]) * 1e-9

@@ -33,10 +33,11 @@ from uav_landing_msgs.msg import DetectionArray, OrientedBox, PoseHypotheses
 
 from ..boosting import DatabaseError, HypothesisConfig, PoseDatabase, PoseHypothesisGenerator
 from ..boosting.obb import check_roi
-from ..camera import CameraInfoError, camera_from_info_fields
+from ..camera import CameraInfoError
 from ..config import ConfigError
 from ..resources import model_path
 from .base import LandingNode, run_node, stamp_ns
+from .calibration import Calibration
 from .image import ImageError, image_to_rgb
 from .poses import numpy_to_pose
 from .qos import IMAGE_QOS, RELIABLE_QOS
@@ -59,7 +60,7 @@ class PoseBoostingNode(LandingNode):
         self.node_config = self.load_config(PoseBoostingNodeConfig, group="node")
         self._database = _load_database(self.config)
         self._generator = None
-        self._info_key = None
+        self._calibration = Calibration()
         self._cache = StampCache(("image", "detections"), self.node_config.cache_size)
         self._pub = self.create_publisher(PoseHypotheses, "uav/pose_hypotheses", RELIABLE_QOS)
         self.create_subscription(CameraInfo, "camera/camera_info_rect", self._on_camera_info, IMAGE_QOS)
@@ -71,15 +72,17 @@ class PoseBoostingNode(LandingNode):
         )
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
-        key = (msg.width, msg.height, tuple(msg.k))
-        if key == self._info_key:
-            return
-        self._info_key = key
-        self._generator = None
         try:
-            camera = camera_from_info_fields(msg.width, msg.height, msg.distortion_model, msg.d, msg.k, msg.r)
+            if not self._calibration.update(msg):
+                return
+        except CameraInfoError as exc:
+            self.drop(f"camera_info rejected: {exc}")
+            return
+        camera = self._calibration.camera
+        try:
             self._generator = PoseHypothesisGenerator(self._database, camera, self.config)
-        except (CameraInfoError, DatabaseError) as exc:
+        except DatabaseError as exc:
+            self._generator = None
             self.drop(f"camera_info rejected: {exc}")
             return
         self.get_logger().info(f"calibration {msg.width}x{msg.height} fx={camera.fx:.1f}: pose database matches")

@@ -35,13 +35,14 @@ from rclpy.clock import Clock, ClockType
 from sensor_msgs.msg import CameraInfo, Image
 from uav_landing_msgs.msg import PoseHypotheses, TrackerStatus
 
-from ..camera import CameraInfoError, camera_from_info_fields
+from ..camera import CameraInfoError
 from ..config import ConfigError
 from ..model import fixed_wing_mesh
 from ..render import Renderer
 from ..render.context import gl_context
 from ..tracking.upf import Tracker, TrackerConfig
 from .base import LandingNode, run_node, stamp_ns
+from .calibration import Calibration
 from .image import ImageError, image_to_rgb, numpy_to_image
 from .poses import numpy_to_pose, pose_to_numpy
 from .qos import IMAGE_QOS, RELIABLE_QOS
@@ -80,7 +81,8 @@ class TrackerNode(LandingNode):
             raise ConfigError(f"OpenGL: {exc}") from exc
         self.get_logger().info(f"GL_RENDERER: {ctx.info['GL_RENDERER']}; tracker {self.config.name}, M={self.config.particles}")
         self._mesh = fixed_wing_mesh("low")
-        self._tracker = self._renderer = self._camera_key = None
+        self._tracker = self._renderer = None
+        self._calibration = Calibration()
         self._last_stamp = -1
         self._cache = StampCache(("image", "hypotheses"), self.node_config.cache_size)
         self._pose_pub = self.create_publisher(PoseWithCovarianceStamped, "uav/pose", RELIABLE_QOS)
@@ -93,17 +95,15 @@ class TrackerNode(LandingNode):
         self.create_timer(DEADLINE_CHECK_S, self._on_deadline, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
-        key = (msg.width, msg.height, tuple(msg.k))
-        if key == self._camera_key:
-            return
         try:
-            camera = camera_from_info_fields(msg.width, msg.height, msg.distortion_model, msg.d, msg.k, msg.r)
+            if not self._calibration.update(msg):
+                return
         except CameraInfoError as exc:
             self.drop(f"camera_info rejected: {exc}")
             return
+        camera = self._calibration.camera
         if self._tracker is not None:
             self.get_logger().warn("the calibration changed: the track restarts")
-        self._camera_key = key
         self._renderer = Renderer(camera, self._mesh, tile=self.config.tile, max_batch=max(512, self.config.particles))
         self._tracker = Tracker(self.config, camera, self._renderer)
         self.get_logger().info(f"calibration {msg.width}x{msg.height} fx={camera.fx:.1f}: tracker ready")

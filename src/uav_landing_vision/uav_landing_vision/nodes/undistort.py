@@ -24,9 +24,10 @@ from typing import Literal
 import cv2
 from sensor_msgs.msg import CameraInfo, Image
 
-from ..camera import CameraInfoError, camera_from_info_fields, camera_info_fields, load_camera_info_yaml
+from ..camera import CameraInfoError, camera_info_fields, load_camera_info_yaml
 from ..config import ConfigError
 from .base import LandingNode, run_node
+from .calibration import Calibration
 from .image import ImageError, image_to_numpy, numpy_to_image
 from .qos import IMAGE_QOS, SENSOR_QOS
 
@@ -46,7 +47,7 @@ class Undistort(LandingNode):
         self.config = self.load_config(UndistortConfig)
         self._camera = None
         self._maps = None
-        self._info_key = None
+        self._calibration = Calibration()
         self._image_pub = self.create_publisher(Image, "camera/image_rect", IMAGE_QOS)
         self._info_pub = self.create_publisher(CameraInfo, "camera/camera_info_rect", IMAGE_QOS)
         camera_qos = IMAGE_QOS if self.config.camera_qos == "reliable" else SENSOR_QOS
@@ -71,16 +72,11 @@ class Undistort(LandingNode):
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
         self.counters["camera_info_received"] += 1
-        key = (msg.width, msg.height, msg.distortion_model, tuple(msg.d), tuple(msg.k), tuple(msg.r))
-        if key == self._info_key:
-            return
         try:
-            camera = camera_from_info_fields(msg.width, msg.height, msg.distortion_model, msg.d, msg.k, msg.r)
+            if self._calibration.update(msg):
+                self._use_camera(self._calibration.camera)
         except CameraInfoError as exc:
             self.drop(f"camera_info rejected: {exc}")
-            return
-        self._info_key = key
-        self._use_camera(camera)
 
     def _on_image(self, msg: Image) -> None:
         self.counters["received"] += 1

@@ -1,0 +1,24 @@
+"""Calibration from ``sensor_msgs/CameraInfo``, parsed and validated once per distinct calibration."""
+
+from ..camera import CameraModel, camera_from_info_fields
+
+
+class Calibration:
+    """The camera of the latest valid camera_info message."""
+
+    def __init__(self):
+        self.camera: CameraModel | None = None
+        self._key = None
+
+    def update(self, msg) -> bool:
+        """True when ``msg`` carries a new calibration, now in :attr:`camera`.
+
+        A repeat of the current calibration costs a tuple comparison; an invalid one raises
+        :class:`~uav_landing_vision.camera.CameraInfoError` and leaves the current camera as is.
+        """
+        key = (msg.width, msg.height, msg.distortion_model, tuple(msg.d), tuple(msg.k), tuple(msg.r))
+        if key == self._key:
+            return False
+        camera = camera_from_info_fields(msg.width, msg.height, msg.distortion_model, msg.d, msg.k, msg.r)
+        self._key, self.camera = key, camera
+        return True
