@@ -7,7 +7,7 @@ VENV_STAMP := $(VENV)/.installed
 BUILD_STAMP := install/.built
 ENV := source scripts/env.sh
 APT_PACKAGES := libegl1 libgl1 libegl-mesa0 libgl1-mesa-dri cmake g++ make
-BUILD_INPUTS := $(shell find src -type f -not -path '*/__pycache__/*' -not -name '*.pyc') colcon.meta
+BUILD_INPUTS := $(shell find src -type f -not -path '*/__pycache__/*' -not -name '*.pyc') colcon.meta scripts/link_workspace.py
 
 .PHONY: setup apt test demo bench clean
 
@@ -32,6 +32,7 @@ $(VENV_STAMP): requirements.txt requirements-dev.txt constraints.txt scripts/fix
 
 $(BUILD_STAMP): $(VENV_STAMP) $(BUILD_INPUTS)
 	$(ENV) && colcon --log-base build/log build --symlink-install --base-paths src --event-handlers console_cohesion- summary+
+	$(VENV)/bin/python scripts/link_workspace.py
 	touch $@
 
 test: setup
