@@ -87,10 +87,12 @@ class EvaluationResult:
 
 
 def evaluate_bag(bag, variants, *, particles: int = 100, metric: str = "colour", roi_source: str = "detector",
-                 frames: int | None = None, seed: int = 0, base: TrackerConfig | None = None,
+                 frames: int | None = None, start: int = 0, seed: int = 0, base: TrackerConfig | None = None,
                  progress: bool = True) -> EvaluationResult:
     """Run ``variants`` (``CxNy`` names) over the simulated ``bag``; see the module docstring.
-    Tracker settings other than variant, N, M, metric and seed come from ``base``."""
+    ``start``: frames skipped first (the trackers start fresh there); ``frames``: how many are
+    then tracked (default: the rest). Tracker settings other than variant, N, M, metric and
+    seed come from ``base``."""
     from ..boosting import HypothesisConfig, PoseHypothesisGenerator
     from ..evaluation import pose_errors
     from ..model import fixed_wing_mesh
@@ -104,7 +106,10 @@ def evaluate_bag(bag, variants, *, particles: int = 100, metric: str = "colour",
     raw_camera = read_camera(bag)
     camera = raw_camera.rectified()
     truth = read_poses(bag)
-    count = len(truth.stamps_ns) if frames is None else min(int(frames), len(truth.stamps_ns))
+    if start < 0:
+        raise EvaluationError(f"start must be non-negative, got {start}")
+    count = max(len(truth.stamps_ns) - int(start), 0)
+    count = count if frames is None else min(int(frames), count)
     rois = detector_rois(camera) if roi_source == "detector" else None
     vertices = fixed_wing_mesh("high").vertices
     maps = raw_camera.undistortion_maps()
@@ -123,7 +128,7 @@ def evaluate_bag(bag, variants, *, particles: int = 100, metric: str = "colour",
     ms = {n: {s: 0.0 for s in SHARED_STAGES + STAGES} for n in names}
     gt_t, gt_q = np.full((count, 3), np.nan), np.full((count, 4), np.nan)
     done = 0
-    for k, (stamp, raw) in enumerate(_frames(iter_frames(bag), count, progress)):
+    for k, (stamp, raw) in enumerate(_frames(iter_frames(bag), start, count, progress)):
         clock = time.perf_counter()
         frame = cv2.remap(raw, maps[0], maps[1], cv2.INTER_LINEAR)
         t_undistort = time.perf_counter()
@@ -156,12 +161,12 @@ def evaluate_bag(bag, variants, *, particles: int = 100, metric: str = "colour",
                             errors, stage_ms, per_frame, {n: states[n][sl] for n in names})
 
 
-def _frames(iterator, count: int, progress: bool):
+def _frames(iterator, start: int, count: int, progress: bool):
     from itertools import islice
 
     from tqdm import tqdm
 
-    return tqdm(islice(iterator, count), total=count, desc="evaluate", unit="frame", disable=not progress)
+    return tqdm(islice(iterator, start, start + count), total=count, desc="evaluate", unit="frame", disable=not progress)
 
 
 def sequence_label(result: EvaluationResult) -> str:

@@ -16,7 +16,8 @@ def register(sub) -> None:
                    help="likelihood metric (default: colour)")
     p.add_argument("--roi-source", choices=("detector", "oracle"), default="detector",
                    help="ROIs from the trained detector (default) or from the ground truth (oracle, labelled)")
-    p.add_argument("--frames", type=int, help="only the first N frames")
+    p.add_argument("--start", type=int, default=0, help="skip the first S frames (default: 0)")
+    p.add_argument("--frames", type=int, help="only N frames (from --start)")
     p.add_argument("--seed", type=int, default=0, help="tracker seed (default: 0)")
     p.add_argument("--config", type=Path, help="tracker parameter file (default: the shipped config/tracker.yaml)")
     p.add_argument("--json", type=Path, help="write the JSON summary here")
@@ -34,9 +35,11 @@ def _run(args) -> int:
         variants = parse_variants(args.variants)
         if args.frames is not None and args.frames < 1:
             raise ValueError("--frames must be at least 1")
+        if args.start < 0:
+            raise ValueError("--start must be non-negative")
         base = load_tracker_config(args.config)
         result = evaluate_bag(args.bag, variants, particles=args.particles, metric=args.metric,
-                              roi_source=args.roi_source, frames=args.frames, seed=args.seed, base=base)
+                              roi_source=args.roi_source, frames=args.frames, start=args.start, seed=args.seed, base=base)
     except (ValueError, ConfigError, EvaluationError, FileNotFoundError) as exc:
         raise SystemExit(f"evaluate: {exc}") from exc
     print(format_results(result))
