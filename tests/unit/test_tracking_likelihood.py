@@ -23,6 +23,7 @@ from uav_landing_vision.tracking.likelihood import (
     make_likelihood,
     mean_edge_distance,
 )
+from uav_landing_vision.tracking.likelihood_colour import outline_band
 from uav_landing_vision.tracking.optimisation import evaluate
 from uav_landing_vision.tracking.particles import ParticleSet
 
@@ -210,3 +211,55 @@ def test_factory_configs(renderer):
         ColourConfig(bins_per_channel=7)
     with pytest.raises(ValueError, match="canny"):
         make_likelihood("contour", renderer, {"edges": {"canny_low": 200.0, "canny_high": 100.0}})
+
+
+def test_outline_band_leaves_out_the_outline_and_keeps_thin_cores():
+    t = 32
+    masks = np.zeros((2, t, t), np.uint8)
+    masks[0, 8:24, 8:24] = 1  # a 16-tile-pixel square
+    masks[1, 13:19, 4:28] = 1  # a bar six tile pixels (12 px) thick
+    boxes = np.array([[0.0, 0.0, 64.0, 64.0], [0.0, 0.0, 64.0, 64.0]])  # 2 frame px per tile px
+    band = outline_band(masks, boxes, 3.5)
+    # square: pixel centres nearer the outline than 3.5 px (1.75 tile px) are in the band
+    assert band[0, 8, 16] and band[0, 9, 16] and not band[0, 10, 16]
+    assert band[0, 7, 16] and band[0, 6, 16] and not band[0, 5, 16]
+    # the bar's deepest pixel centres lie 5 px inside: the band narrows to 2.5 px there
+    assert band[1, 13, 16] and band[1, 12, 16] and not band[1, 14, 16] and not band[1, 11, 16]
+    # a band narrower than a tile pixel still takes the ring next to the outline
+    ring = outline_band(masks[:1], boxes[:1], 0.1)
+    assert ring[0, 8, 16] and ring[0, 7, 16] and not ring[0, 9, 16] and not ring[0, 6, 16]
+
+
+def test_outline_band_widens_the_colour_peak_on_a_blurred_frame(renderer, frame):
+    """The frame's UAV edge blurred as the simulator's optics do: a three-pixel shift costs the
+    thesis metric (band 0) much more of its peak than the banded metric, and the true pose
+    still wins under both."""
+    blurred = cv2.GaussianBlur(frame, (0, 0), 1.0)
+    shift = 3.0 * T_TRUE[2] / renderer.K[0, 0]  # three pixels at the true depth
+    trans = T_TRUE + np.array([[0.0, 0.0, 0.0], [shift, 0.0, 0.0], [0.0, shift, 0.0]])
+    ratios = []
+    for cfg in (ColourConfig(), ColourConfig(band_px=1.5)):
+        lik = make_likelihood("colour", renderer, cfg)
+        lik.prepare(blurred)
+        s = lik.score(np.repeat(Q_TRUE[None], 3, axis=0), trans)
+        ratios.append(s[1:].mean() / s[0])
+        scores = lik.score(*perturbed_poses())
+        assert scores[0] > scores[1:].max(), scores
+    assert 1.0 - ratios[1] < 0.5 * (1.0 - ratios[0]), ratios
+
+
+def test_band_zero_is_the_thesis_metric_and_band_mixes_both(renderer, frame):
+    """band_px = 0 scores exactly as (5.14) over every pixel; with a band the score is the mean
+    of the banded and the full (5.14)."""
+    quats, trans = perturbed_poses()
+    plain = make_likelihood("colour", renderer)
+    banded = make_likelihood("colour", renderer, ColourConfig(band_px=1.5))
+    plain.prepare(frame)
+    banded.prepare(frame)
+    batch = renderer.silhouettes(quats, trans)
+    full = plain.score_batch(batch)
+    inner, outer = banded.histograms(batch.masks, batch.boxes)
+    core = np.clip(colour_similarity(inner / inner.sum(1, keepdims=True), outer / outer.sum(1, keepdims=True)), 0, 1)
+    np.testing.assert_allclose(banded.score_batch(batch), 0.5 * (core + full), atol=1e-12)
+    with pytest.raises(ValueError, match="band_px"):
+        ColourConfig(band_px=-1.0)

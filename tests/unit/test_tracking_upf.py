@@ -199,7 +199,7 @@ def test_variant_parsing_and_configuration():
             TrackerConfig(**bad)
 
 
-def test_shipped_tracker_yaml_is_the_thesis_default(tmp_path):
+def test_shipped_tracker_yaml_is_the_default(tmp_path):
     assert load_tracker_config() == TrackerConfig()
     bad = tmp_path / "tracker.yaml"
     bad.write_text("tracker:\n  ros__parameters:\n    particels: 100\n")

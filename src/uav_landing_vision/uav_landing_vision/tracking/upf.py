@@ -30,7 +30,7 @@ from scipy.spatial.transform import Rotation
 
 from ..filters.motion import MotionFilterConfig
 from ..geometry import omega_quat, quat_multiply, quat_normalise
-from .likelihood import LIKELIHOODS, make_likelihood
+from .likelihood import LIKELIHOODS, ColourConfig, make_likelihood
 from .motion_bank import MotionBank
 from .optimisation import PFO, PSO, ConstrictedPSO, GAbF, PFOConfig, evaluate
 from .particles import ParticleSet
@@ -68,6 +68,7 @@ class TrackerConfig:
     optimiser: str = "pfo"  # pfo | pso | constricted_pso | gabf (the last three with thesis defaults)
     seed: int = 0
     tile: int = 64  # silhouette tile size (px) of the batched render
+    colour: ColourConfig = field(default_factory=lambda: ColourConfig(band_px=1.5))  # colour metric (5.14), see yaml
     pfo: PFOConfig = field(default_factory=PFOConfig)
     motion: MotionFilterConfig = field(default_factory=MotionFilterConfig)
     track: TrackStateConfig = field(default_factory=TrackStateConfig)
@@ -183,7 +184,7 @@ class Tracker:
         if renderer.max_batch < config.particles:
             raise ValueError(f"renderer max_batch {renderer.max_batch} < particles {config.particles}")
         self.config = config
-        self.likelihood = make_likelihood(config.metric, renderer)
+        self.likelihood = make_likelihood(config.metric, renderer, config.colour if config.metric == "colour" else None)
         self.optimiser = _optimiser(config)
         self.rng = np.random.default_rng(np.random.SeedSequence(config.seed))
         self.monitor = TrackMonitor(config.track)
