@@ -39,3 +39,16 @@ def config_path(name: str) -> Path:
 def model_path(name: str) -> Path:
     """A shipped artefact of ``models/`` (detector, pose database, tables)."""
     return _locate("models", name, _PACKAGE_DIR.parent / "models")
+
+
+def config_file(name_or_path) -> Path:
+    """``name_or_path`` where that file exists, else the ``config/`` file of that name."""
+    path = Path(name_or_path)
+    return path if path.exists() else config_path(str(name_or_path))
+
+
+def model_file(name_or_path) -> Path:
+    """``name_or_path`` as is when it is absolute or exists (its reader reports a missing file),
+    else the ``models/`` artefact of that name."""
+    path = Path(name_or_path)
+    return path if path.is_absolute() or path.exists() else model_path(str(name_or_path))

@@ -101,13 +101,9 @@ class PoseHypothesisGenerator:
     @classmethod
     def from_config(cls, config: HypothesisConfig, camera: CameraModel, mesh=None) -> "PoseHypothesisGenerator":
         """Load ``config.database`` (checked against the camera and, if given, the mesh)."""
-        from pathlib import Path
+        from ..resources import model_file
 
-        from ..resources import model_path
-
-        path = Path(config.database)
-        path = path if path.is_absolute() or path.exists() else model_path(config.database)
-        database = PoseDatabase.load(path, camera=camera.rectified(), mesh=mesh, aspect_weight=config.aspect_weight)
+        database = PoseDatabase.load(model_file(config.database), camera=camera.rectified(), mesh=mesh, aspect_weight=config.aspect_weight)
         return cls(database, camera, config)
 
     def generate(self, frame: np.ndarray, roi, first_frame: bool = False, count: int | None = None) -> Hypotheses | None:

@@ -205,10 +205,9 @@ class SampleGenerator:
         from ..camera import load_camera_info_yaml
         from ..model import fixed_wing_mesh
         from ..render import Renderer
-        from ..resources import config_path
+        from ..resources import config_file
 
-        path = Path(cfg.camera_info)
-        self.camera = load_camera_info_yaml(path if path.exists() else config_path(cfg.camera_info)).rectified()
+        self.camera = load_camera_info_yaml(config_file(cfg.camera_info)).rectified()
         self.cfg = cfg
         self.renderer = Renderer(self.camera, mesh if mesh is not None else fixed_wing_mesh("high"))
         self.backgrounds = BackgroundSource(self.camera, cfg)

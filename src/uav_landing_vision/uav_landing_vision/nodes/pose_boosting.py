@@ -24,7 +24,6 @@ a calibration the database was not made for is logged and its frames dropped.
 import math
 import sys
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 from geometry_msgs.msg import Pose
@@ -35,7 +34,7 @@ from ..boosting import DatabaseError, HypothesisConfig, PoseDatabase, PoseHypoth
 from ..boosting.obb import check_roi
 from ..camera import CameraInfoError
 from ..config import ConfigError
-from ..resources import model_path
+from ..resources import model_file
 from .base import LandingNode, run_node, stamp_ns
 from .calibration import Calibration
 from .image import ImageError, image_to_rgb
@@ -149,9 +148,7 @@ class PoseBoostingNode(LandingNode):
 
 def _load_database(config: HypothesisConfig) -> PoseDatabase:
     try:
-        path = Path(config.database)
-        path = path if path.is_absolute() or path.exists() else model_path(config.database)
-        return PoseDatabase.load(path, aspect_weight=config.aspect_weight)
+        return PoseDatabase.load(model_file(config.database), aspect_weight=config.aspect_weight)
     except (FileNotFoundError, DatabaseError) as exc:
         raise ConfigError(f"database: {exc}; make it with `uav-landing build-database --camera <camera_info YAML>`") from exc
 

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from ..camera import CameraModel, load_camera_info_yaml
-from ..resources import config_path
+from ..resources import config_file
 from .backgrounds import make_background
 from .config import Scenario, ScenarioError
 from .trajectory import Trajectory, landing_approach, single_frame_poses
@@ -31,8 +31,7 @@ def generators(seed: int) -> dict[str, np.random.Generator]:
 
 def scenario_camera(scenario: Scenario) -> CameraModel:
     """The camera of the scenario's ``camera_info`` (a ``config/`` file name or a path)."""
-    path = Path(scenario.camera_info)
-    return load_camera_info_yaml(path if path.exists() else config_path(scenario.camera_info))
+    return load_camera_info_yaml(config_file(scenario.camera_info))
 
 
 def make_trajectory(scenario: Scenario, rngs: dict[str, np.random.Generator]) -> Trajectory:
