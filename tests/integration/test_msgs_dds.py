@@ -6,7 +6,6 @@ import sys
 import time
 from pathlib import Path
 
-import pytest
 import rclpy
 from geometry_msgs.msg import Point, Pose, Quaternion
 from rclpy.node import Node
