@@ -16,6 +16,7 @@ from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 
+from ..camera import CameraInfoError
 from ..config import ConfigError, from_mapping
 from .qos import RELIABLE_QOS
 
@@ -76,6 +77,15 @@ class LandingNode(Node):
             if not self.has_parameter(name) and _is_parameter_value(value):
                 self.declare_parameter(name, list(value) if isinstance(value, tuple) else value)
         return config
+
+    def take_camera_info(self, calibration, msg) -> bool:
+        """Update ``calibration`` (a :class:`~.calibration.Calibration`) from a camera_info
+        message: True when it carries a new calibration; an unusable one is dropped."""
+        try:
+            return calibration.update(msg)
+        except CameraInfoError as exc:
+            self.drop(f"camera_info rejected: {exc}")
+            return False
 
     def drop(self, reason: str) -> None:
         """Log why a message is dropped (at most once a second per node) and count it."""

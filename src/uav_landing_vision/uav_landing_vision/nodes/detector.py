@@ -21,7 +21,6 @@ from geometry_msgs.msg import PoseWithCovarianceStamped
 from sensor_msgs.msg import CameraInfo, Image, RegionOfInterest
 from uav_landing_msgs.msg import Detection, DetectionArray
 
-from ..camera import CameraInfoError
 from ..config import ConfigError
 from ..detection.detector import Detector, DetectorConfig, search_window
 from ..model import fixed_wing_mesh
@@ -68,10 +67,7 @@ class DetectorNode(LandingNode):
         )
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
-        try:
-            self._calibration.update(msg)
-        except CameraInfoError as exc:
-            self.drop(f"camera_info rejected: {exc}")
+        self.take_camera_info(self._calibration, msg)
 
     def _on_pose(self, msg: PoseWithCovarianceStamped) -> None:
         try:

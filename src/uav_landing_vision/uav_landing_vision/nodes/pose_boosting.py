@@ -32,7 +32,6 @@ from uav_landing_msgs.msg import DetectionArray, OrientedBox, PoseHypotheses
 
 from ..boosting import DatabaseError, HypothesisConfig, PoseDatabase, PoseHypothesisGenerator
 from ..boosting.obb import check_roi
-from ..camera import CameraInfoError
 from ..config import ConfigError
 from ..resources import model_file
 from .base import LandingNode, run_node, stamp_ns
@@ -71,11 +70,7 @@ class PoseBoostingNode(LandingNode):
         )
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
-        try:
-            if not self._calibration.update(msg):
-                return
-        except CameraInfoError as exc:
-            self.drop(f"camera_info rejected: {exc}")
+        if not self.take_camera_info(self._calibration, msg):
             return
         camera = self._calibration.camera
         try:

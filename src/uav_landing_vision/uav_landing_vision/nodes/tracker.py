@@ -35,7 +35,6 @@ from rclpy.clock import Clock, ClockType
 from sensor_msgs.msg import CameraInfo, Image
 from uav_landing_msgs.msg import PoseHypotheses, TrackerStatus
 
-from ..camera import CameraInfoError
 from ..config import ConfigError
 from ..model import fixed_wing_mesh
 from ..render import Renderer
@@ -95,11 +94,7 @@ class TrackerNode(LandingNode):
         self.create_timer(DEADLINE_CHECK_S, self._on_deadline, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
-        try:
-            if not self._calibration.update(msg):
-                return
-        except CameraInfoError as exc:
-            self.drop(f"camera_info rejected: {exc}")
+        if not self.take_camera_info(self._calibration, msg):
             return
         camera = self._calibration.camera
         if self._tracker is not None:

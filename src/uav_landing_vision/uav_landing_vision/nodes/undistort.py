@@ -72,11 +72,8 @@ class Undistort(LandingNode):
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
         self.counters["camera_info_received"] += 1
-        try:
-            if self._calibration.update(msg):
-                self._use_camera(self._calibration.camera)
-        except CameraInfoError as exc:
-            self.drop(f"camera_info rejected: {exc}")
+        if self.take_camera_info(self._calibration, msg):
+            self._use_camera(self._calibration.camera)
 
     def _on_image(self, msg: Image) -> None:
         self.counters["received"] += 1
