@@ -1,6 +1,7 @@
 """``uav-landing demo``: what ``make demo`` runs.
 
-Until the node graph exists, the demo renders a short fly-by of the UAV model to PNG files.
+Until the end-to-end demo through the node graph exists (it needs the trained detector), the
+demo renders a short fly-by of the UAV model to PNG files.
 """
 
 from pathlib import Path
