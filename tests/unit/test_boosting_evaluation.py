@@ -32,7 +32,7 @@ def test_closest_hypothesis_is_chosen_by_rotation_among_the_first_k():
     quats = euler_zyx_to_quat(np.radians([[0, 0, 40], [0, 0, 20], [0, 0, 5], [0, 0, 1]]))
     positions = np.array([[0, 0, 1.0], [0, 0, 2.0], [0, 0, 3.0], [0, 0, 4.0]])
     t_err, r_err = closest_errors(q_true, np.zeros(3), quats, positions, (1, 2, 4))
-    np.testing.assert_allclose(t_err[:, 2], [-1.0, -2.0, -4.0])
+    np.testing.assert_allclose(t_err[:, 2], [1.0, 2.0, 4.0])  # estimate − truth
     np.testing.assert_allclose(np.degrees(r_err[:, 2]), [-40.0, -20.0, -1.0], atol=1e-9)
 
 

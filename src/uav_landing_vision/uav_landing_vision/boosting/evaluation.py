@@ -82,10 +82,14 @@ def silhouette_roi(alpha: np.ndarray, margin: float = ROI_MARGIN):
 
 def closest_errors(q_true, t_true, quats, positions, top) -> tuple[np.ndarray, np.ndarray]:
     """Per top-k, translation ``(len(top), 3)`` and Euler ``(len(top), 3)`` (rad) errors of the
-    hypothesis with the smallest geodesic error among the first k."""
+    hypothesis with the smallest geodesic error among the first k.
+
+    Signs as everywhere in the project's evaluation: translation estimate − truth, rotation the
+    Euler angles of q_e = q_g ⊗ q̄_r (6.4).
+    """
     geo = geodesic_angle(np.broadcast_to(q_true, quats.shape), quats)
     best = np.array([np.argmin(geo[:k]) for k in top])
-    return t_true - positions[best], euler_error(np.broadcast_to(q_true, (len(best), 4)), quats[best])
+    return positions[best] - t_true, euler_error(np.broadcast_to(q_true, (len(best), 4)), quats[best])
 
 
 def evaluate_boosting(camera: CameraModel, mesh, config: BoostingEvalConfig = BoostingEvalConfig(), *,
