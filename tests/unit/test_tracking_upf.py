@@ -194,7 +194,8 @@ def test_variant_parsing_and_configuration():
     assert TrackerConfig(variant="C3").motion.rotation_filter == "ukf"
     assert TrackerConfig(variant="C5").motion.rotation_filter == "ubigaf"
     assert TrackerConfig.from_variant("C4N2").name == "C4N2"
-    for bad in ({"particles": 1}, {"boosted": 0}, {"metric": "sift"}, {"optimiser": "adam"}, {"variant": "C7"}):
+    for bad in ({"particles": 1}, {"boosted": 0}, {"metric": "sift"}, {"optimiser": "adam"}, {"variant": "C7"},
+                {"depth_prior_sigma": -0.1}, {"depth_prior_floor": 0.0}, {"depth_prior_max_m": 0.0}):
         with pytest.raises(ValueError):
             TrackerConfig(**bad)
 
@@ -205,3 +206,32 @@ def test_shipped_tracker_yaml_is_the_default(tmp_path):
     bad.write_text("tracker:\n  ros__parameters:\n    particels: 100\n")
     with pytest.raises(ConfigError, match="particels"):
         load_tracker_config(bad)
+
+
+def test_depth_prior_shape():
+    from uav_landing_vision.tracking.upf import depth_prior
+
+    z = np.array([10.0, 10.5, 11.0, 20.0])
+    p = depth_prior(z, 10.0, 0.05, 0.25)
+    assert p[0] == 1.0 and 1.0 > p[1] > p[2] > p[3] >= 0.25
+    np.testing.assert_allclose(p[1], 0.25 + 0.75 * np.exp(-0.5))
+    np.testing.assert_allclose(p[3], 0.25)
+
+
+def test_depth_prior_pulls_depth_to_the_boosted_depth_and_reports_the_likelihood(renderer, frame):
+    """Boosted depths 8 % too far: the prior moves the estimate towards them; best_likelihood
+    stays the likelihood alone; beyond depth_prior_max_m the tracker is the thesis's."""
+    far = Hyps(hypotheses(5).quats, hypotheses(5).positions * np.array([1.0, 1.0, 1.08]))
+    anchor = np.median(far.positions[:40, 2])
+
+    def last(**overrides):
+        tracker = Tracker(TrackerConfig.from_variant("C4N2", particles=40, boosted=10, **overrides), CAMERA, renderer)
+        return tracker, [tracker.step(frame, k, far) for k in range(3)][-1]
+
+    _, plain = last(depth_prior_sigma=0.0)
+    tracker, pulled = last(depth_prior_sigma=0.02, depth_prior_floor=0.05)
+    assert abs(pulled.position[2] - anchor) < abs(plain.position[2] - anchor)
+    alone = tracker.likelihood.score(pulled.quat[None], pulled.position[None])[0]
+    np.testing.assert_allclose(pulled.best_likelihood, alone)
+    _, gated = last(depth_prior_sigma=0.02, depth_prior_floor=0.05, depth_prior_max_m=6.0)
+    np.testing.assert_array_equal(gated.position, plain.position)
