@@ -78,7 +78,7 @@ class TrackerConfig:
     covariance_floor_deg: float = 1.0  # σ added to each rotation variance
     depth_prior_sigma: float = 0.20  # ours, 0 = thesis: relative σ of the boosted-depth prior (depth_prior)
     depth_prior_floor: float = 0.5  # the prior's value far from the boosted depth
-    depth_prior_max_m: float = 35.0  # no prior where the boosted depth is beyond this
+    depth_prior_max_m: float = 30.0  # no prior where the boosted depth is beyond this
 
     def __post_init__(self):
         if self.variant not in COMBINATIONS:
