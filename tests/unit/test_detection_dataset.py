@@ -46,13 +46,13 @@ def test_config_rejects_missing_sources():
         DatasetConfig(families=("sunset",))
 
 
-def test_dataset_is_deterministic_by_seed(tmp_path):
+def test_dataset_is_deterministic_by_seed_whatever_the_workers(tmp_path):
     camera = CameraModel(192, 108, np.array([[165.0, 0, 96.0], [0, 165.0, 54.0], [0, 0, 1]]))
     save_camera_info_yaml(camera, tmp_path / "cam.yaml")
     cfg = DatasetConfig(count=4, seed=7, camera_info=str(tmp_path / "cam.yaml"), families=("normal",),
                         banks_per_family=1, negative_fraction=0.25)
     first = generate(cfg, tmp_path / "a", progress=False)
-    generate(cfg, tmp_path / "b", progress=False)
+    assert generate(cfg, tmp_path / "b", progress=False, workers=2) == first  # image i: the same in any process
     assert first["width"] == 192 and first["images"] == 4 and first["positives"] >= 1
     for sub, pattern in (("images", "*.jpg"), ("labels", "*.txt")):
         a, b = sorted((tmp_path / "a" / sub).glob(pattern)), sorted((tmp_path / "b" / sub).glob(pattern))
@@ -60,3 +60,5 @@ def test_dataset_is_deterministic_by_seed(tmp_path):
         assert all(x.read_bytes() == y.read_bytes() for x, y in zip(a, b))
     with pytest.raises(FileExistsError):
         generate(cfg, tmp_path / "a", progress=False)
+    with pytest.raises(ValueError, match="workers"):
+        generate(cfg, tmp_path / "c", progress=False, workers=0)

@@ -17,6 +17,7 @@ def register(sub) -> None:
     p.add_argument("--images", default="", help="folder of user background images (family 'images')")
     p.add_argument("--video", default="", help="video file or bag (family 'video')")
     p.add_argument("--camera", default="camera.yaml", help="camera_info YAML (config/ name or path)")
+    p.add_argument("--workers", type=int, default=1, help="processes generating in parallel (default: 1)")
     p.set_defaults(func=_make_data)
 
     p = sub.add_parser("train-detector", help="train the detector on the CPU and export it to ONNX")
@@ -52,7 +53,7 @@ def _make_data(args) -> int:
     try:
         cfg = DatasetConfig(count=args.count, seed=args.seed, families=families, image_dir=args.images,
                             video=args.video, camera_info=args.camera)
-        summary = generate(cfg, args.out)
+        summary = generate(cfg, args.out, workers=args.workers)
     except (ValueError, FileExistsError) as exc:
         raise SystemExit(f"make-detection-data: {exc}") from None
     print(f"wrote {summary['images']} images ({summary['positives']} with the UAV) to {args.out}")

@@ -228,27 +228,67 @@ class SampleGenerator:
         return photometric(image, rng, cfg), box
 
 
-def generate(cfg: DatasetConfig, out_dir, progress: bool = True) -> dict:
-    """Write the dataset to ``out_dir`` (which must not hold one yet); return its summary."""
+_WORKER: SampleGenerator | None = None
+
+
+def _start_worker(cfg: DatasetConfig) -> None:
+    global _WORKER
+    _WORKER = SampleGenerator(cfg)
+
+
+def _write_images(out: Path, indices) -> list[float | None]:
+    """Write images ``indices`` with the process's generator; the width of each ROI (None: no UAV)."""
+    gen, widths = _WORKER, []
+    w, h = gen.camera.width, gen.camera.height
+    for i in indices:
+        image, box = gen.sample(i)
+        cv2.imwrite(str(out / "images" / f"{i:06d}.jpg"), cv2.cvtColor(image, cv2.COLOR_RGB2BGR),
+                    [cv2.IMWRITE_JPEG_QUALITY, gen.cfg.jpeg_quality])
+        (out / "labels" / f"{i:06d}.txt").write_text("" if box is None else yolo_line(box, w, h) + "\n")
+        widths.append(None if box is None else float(box[2] - box[0]))
+    return widths
+
+
+def generate(cfg: DatasetConfig, out_dir, progress: bool = True, workers: int = 1) -> dict:
+    """Write the dataset to ``out_dir`` (which must not hold one yet); return its summary.
+
+    ``workers`` > 1 spreads the images over that many processes (each with its own GL
+    context); image ``i`` is the same whichever process makes it."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
     from tqdm import tqdm
 
+    if workers < 1:
+        raise ValueError("workers must be ≥ 1")
     out = Path(out_dir)
     if (out / "dataset.json").exists():
         raise FileExistsError(f"{out} already holds a dataset; choose a new folder")
     (out / "images").mkdir(parents=True, exist_ok=True)
     (out / "labels").mkdir(parents=True, exist_ok=True)
-    gen = SampleGenerator(cfg)
-    w, h = gen.camera.width, gen.camera.height
-    positives, widths = 0, []
-    for i in tqdm(range(cfg.count), desc="detection data", unit="img", disable=not progress):
-        image, box = gen.sample(i)
-        cv2.imwrite(str(out / "images" / f"{i:06d}.jpg"), cv2.cvtColor(image, cv2.COLOR_RGB2BGR),
-                    [cv2.IMWRITE_JPEG_QUALITY, cfg.jpeg_quality])
-        (out / "labels" / f"{i:06d}.txt").write_text("" if box is None else yolo_line(box, w, h) + "\n")
-        if box is not None:
-            positives += 1
-            widths.append(box[2] - box[0])
-    summary = {"config": asdict(cfg), "width": w, "height": h, "images": cfg.count, "positives": positives,
-               "box_width_px_percentiles": np.percentile(widths, [0, 5, 50, 95, 100]).round(1).tolist() if widths else []}
+    chunks = [range(a, min(a + 25, cfg.count)) for a in range(0, cfg.count, 25)]
+    bar = tqdm(total=cfg.count, desc="detection data", unit="img", disable=not progress)
+    widths: list[float | None] = []
+    if workers == 1:
+        _start_worker(cfg)
+        for chunk in chunks:
+            widths += _write_images(out, chunk)
+            bar.update(len(chunk))
+        camera = _WORKER.camera
+    else:
+        ctx = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_start_worker, initargs=(cfg,)) as pool:
+            for chunk_widths in pool.map(_write_images, [out] * len(chunks), chunks):
+                widths += chunk_widths
+                bar.update(len(chunk_widths))
+        from ..camera import load_camera_info_yaml
+        from ..resources import config_file
+
+        camera = load_camera_info_yaml(config_file(cfg.camera_info)).rectified()
+    bar.close()
+    found = [x for x in widths if x is not None]
+    summary = {"config": asdict(cfg), "width": camera.width, "height": camera.height, "images": cfg.count,
+               "positives": len(found),
+               "box_width_px_percentiles": np.percentile(found, [0, 5, 50, 95, 100]).round(1).tolist() if found else []}
     (out / "dataset.json").write_text(json.dumps(summary, indent=2))
     return summary
