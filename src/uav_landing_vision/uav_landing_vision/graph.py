@@ -4,8 +4,8 @@ Each node of :data:`GRAPH_NODES` runs as
 ``python -m uav_landing_vision.nodes.<node> --ros-args --params-file <config>/<node>.yaml``
 (the same parameter files as ``launch/landing_vision.launch.py``). Their output is streamed
 with a ``[node]`` prefix. The graph stops, every node with SIGINT (then SIGTERM, then SIGKILL
-after ``--stop-timeout``), on Ctrl-C or SIGTERM, when ``bag_player`` has played the bag, or
-when a node exits on its own; the exit code is 0 only if every node ended cleanly.
+after ``--stop-timeout``), on Ctrl-C or SIGTERM, ``--drain`` seconds after ``bag_player`` has
+played the bag (for the last frame's messages downstream), or when a node exits on its own; the exit code is 0 only if every node ended cleanly.
 This module imports no ROS module: the nodes do, in their own processes.
 """
 
@@ -44,6 +44,8 @@ def register(sub) -> None:
     )
     p.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID of the graph (default: the environment's)")
     p.add_argument("--stop-timeout", type=float, default=10.0, help="seconds a node gets to stop before it is killed (default: 10)")
+    p.add_argument("--drain", type=float, default=2.0,
+                   help="seconds between the end of the bag and the stop, for the last messages (default: 2)")
     p.set_defaults(func=_run)
 
 
@@ -67,7 +69,7 @@ def _run(args) -> int:
     env["PYTHONPATH"] = os.pathsep.join(p for p in (package_root, env.get("PYTHONPATH")) if p)
     if args.domain_id is not None:
         env["ROS_DOMAIN_ID"] = str(args.domain_id)
-    return Graph(names, args.config, overrides, env, args.stop_timeout).run()
+    return Graph(names, args.config, overrides, env, args.stop_timeout, args.drain).run()
 
 
 def _plan(args) -> tuple[list[str], dict]:
@@ -84,6 +86,8 @@ def _plan(args) -> tuple[list[str], dict]:
         raise ValueError(f"bag {args.bag} does not exist")
     if not names:
         raise ValueError("no node to run")
+    if args.drain < 0 or args.stop_timeout <= 0:
+        raise ValueError("--drain must be >= 0 and --stop-timeout > 0")
     overrides = {n: [] for n in names}
     if args.bag is not None:
         overrides[PLAYER].append(("bag", str(args.bag.resolve())))
@@ -104,12 +108,13 @@ def _plan(args) -> tuple[list[str], dict]:
 class Graph:
     """The node processes of one run, their log streams and their shutdown."""
 
-    def __init__(self, names, config_dir: Path, overrides: dict, env: dict, stop_timeout: float):
+    def __init__(self, names, config_dir: Path, overrides: dict, env: dict, stop_timeout: float, drain_s: float = 2.0):
         self.names = names
         self.config_dir = config_dir
         self.overrides = overrides
         self.env = env
         self.stop_timeout = stop_timeout
+        self.drain_s = drain_s
         self.procs: dict[str, subprocess.Popen] = {}
         self._print_lock = threading.Lock()
         self._stop_requested = threading.Event()
@@ -153,7 +158,8 @@ class Graph:
                 if code is None:
                     continue
                 if name == PLAYER and code == 0:
-                    self._say("bag played; stopping the graph")
+                    self._say(f"bag played; stopping the graph in {self.drain_s:g} s")
+                    self._stop_requested.wait(self.drain_s)
                     return []
                 self._say(f"{name} exited with code {code}; stopping the graph")
                 return [name]

@@ -59,6 +59,7 @@ class BagPlayerConfig:
     ready_topics: tuple[str, ...] = ()
     ready_timeout_s: float = 30.0
     clock: bool = False
+    progress_every: int = 50  # log a line every this many pace-topic messages (0: never)
 
     def __post_init__(self):
         if not self.bag:
@@ -67,6 +68,8 @@ class BagPlayerConfig:
             raise ValueError(f"rate must be > 0, got {self.rate}")
         if not (self.ack_timeout_s > 0.0 and self.ready_timeout_s > 0.0):
             raise ValueError("ack_timeout_s and ready_timeout_s must be > 0")
+        if self.progress_every < 0:
+            raise ValueError(f"progress_every must be >= 0, got {self.progress_every}")
 
 
 class BagPlayer(LandingNode):
@@ -111,6 +114,8 @@ class BagPlayer(LandingNode):
             return 1
         paced = self.config.mode == "paced"
         first_ns = start = None
+        frames = 0
+        total = sum(c.msgcount for c in self._reader.connections if c.topic == self.config.pace_topic)
         try:
             for conn, t_ns, raw in self._messages():
                 publisher = self._players.get(conn.topic)
@@ -135,6 +140,11 @@ class BagPlayer(LandingNode):
                 self.counters["published"] += 1
                 if is_frame:
                     self._pending = stamp_ns(msg.header.stamp)
+                if conn.topic == self.config.pace_topic:
+                    frames += 1
+                    every = self.config.progress_every
+                    if every and (frames % every == 0 or frames == total):
+                        self.get_logger().info(f"played {frames}/{total} frames")
                 executor.spin_once(timeout_sec=0.0)
         except (ReaderError, OSError) as exc:
             self.get_logger().error(f"bag {self.config.bag} cannot be read further: {exc}")
