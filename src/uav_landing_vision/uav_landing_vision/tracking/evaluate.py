@@ -1,7 +1,8 @@
 """``uav-landing evaluate``: a simulated bag through the tracker core, thesis-format results (§6.7.1).
 
 Per frame, once for all variants: undistort the raw frame (3.16–3.17), find the ROI, boost
-(§4.3); then every ``CxNy`` variant's :class:`~.upf.Tracker` steps on the same frame and
+(§4.3) — detector and boosting with the settings of the graph's nodes (``config/detector.yaml``,
+``config/pose_boosting.yaml``, except M and M0); then every ``CxNy`` variant's :class:`~.upf.Tracker` steps on the same frame and
 hypotheses (each takes the first M or M − M0 of them, best first, as it needs). ROI sources:
 
 - ``detector`` (default): the project's ONNX detector (§4.2) on the full frame, best box. If
@@ -55,12 +56,23 @@ def oracle_roi(camera, vertices: np.ndarray, quat, trans, margin: float = ROI_MA
     return None if x1 <= x0 or y1 <= y0 else (int(x0), int(y0), int(x1 - x0), int(y1 - y0))
 
 
+def shipped_config(cls, node: str):
+    """Dataclass ``cls`` from the top-level keys of ``config/<node>.yaml`` (its ``node`` group,
+    the node's own settings, left out): the values the node of the graph runs with."""
+    from ..config import from_mapping, load_node_parameters
+    from ..resources import config_path
+
+    path = config_path(f"{node}.yaml")
+    params = {k: v for k, v in load_node_parameters(path, node).items() if k != "node"}
+    return from_mapping(cls, params, f"{path}: {node}")
+
+
 def detector_rois(camera):
     """Frame → best detector ROI or None; raises :class:`EvaluationError` if there is no detector."""
     try:
         from ..detection.detector import Detector, DetectorConfig
 
-        detector = Detector(DetectorConfig())
+        detector = Detector(shipped_config(DetectorConfig, "detector"))
     except (ImportError, FileNotFoundError, OSError, ValueError) as exc:
         raise EvaluationError(
             f"--roi-source detector needs the trained detector (uav_landing_vision.detection, models/detector.onnx): "
@@ -116,8 +128,9 @@ def evaluate_bag(bag, variants, *, particles: int = 100, metric: str = "colour",
     base = TrackerConfig() if base is None else base
     configs = {n: replace(base, variant=c, iterations=k, particles=particles, metric=metric, seed=seed)
                for n, (c, k) in zip(names, map(parse_variant, names))}
-    boost = PoseHypothesisGenerator.from_config(
-        HypothesisConfig(particles=particles, kept=particles - configs[names[0]].boosted), camera)
+    boost = PoseHypothesisGenerator.from_config(replace(
+        shipped_config(HypothesisConfig, "pose_boosting"), particles=particles, kept=particles - configs[names[0]].boosted),
+        camera)
     renderer = Renderer(camera, fixed_wing_mesh("low"), tile=configs[names[0]].tile, max_batch=max(512, particles))
     trackers = {n: Tracker(c, camera, renderer) for n, c in configs.items()}
     index = {int(s): i for i, s in enumerate(truth.stamps_ns)}
