@@ -58,6 +58,7 @@ class BagPlayerConfig:
     ack_timeout_s: float = 10.0
     ready_topics: tuple[str, ...] = ()
     ready_timeout_s: float = 30.0
+    ready_settle_s: float = 0.0  # then wait this long for the other processes to match each other
     clock: bool = False
     progress_every: int = 50  # log a line every this many pace-topic messages (0: never)
 
@@ -68,6 +69,8 @@ class BagPlayerConfig:
             raise ValueError(f"rate must be > 0, got {self.rate}")
         if not (self.ack_timeout_s > 0.0 and self.ready_timeout_s > 0.0):
             raise ValueError("ack_timeout_s and ready_timeout_s must be > 0")
+        if self.ready_settle_s < 0.0:
+            raise ValueError(f"ready_settle_s must be >= 0, got {self.ready_settle_s}")
         if self.progress_every < 0:
             raise ValueError(f"progress_every must be >= 0, got {self.progress_every}")
 
@@ -187,6 +190,7 @@ class BagPlayer(LandingNode):
         while (missing := self._missing()) and time.monotonic() < deadline:
             executor.spin_once(timeout_sec=0.1)
         if not missing:
+            _spin_until(executor, time.monotonic() + self.config.ready_settle_s)
             return True
         text = f"not ready after {self.config.ready_timeout_s:g} s: no {', no '.join(missing)}"
         if self.config.mode == "paced":
