@@ -62,3 +62,21 @@ def test_dataset_is_deterministic_by_seed_whatever_the_workers(tmp_path):
         generate(cfg, tmp_path / "a", progress=False)
     with pytest.raises(ValueError, match="workers"):
         generate(cfg, tmp_path / "c", progress=False, workers=0)
+
+
+def test_approach_attitudes_point_the_nose_at_the_camera():
+    from scipy.spatial.transform import Rotation
+
+    from uav_landing_vision.detection.dataset import random_pose
+
+    camera = CameraModel(1280, 720, np.array([[1100.0, 0, 640.0], [0, 1100.0, 360.0], [0, 0, 1]]))
+    rng = np.random.default_rng(0)
+    noses = {}
+    for fraction in (1.0, 0.0):
+        cfg = DatasetConfig(approach_fraction=fraction)
+        quats = np.array([random_pose(rng, camera, cfg)[0] for _ in range(300)])
+        noses[fraction] = Rotation.from_quat(quats).apply([1.0, 0.0, 0.0])[:, 2]  # nose · optical axis
+    assert np.all(noses[1.0] < -np.cos(np.radians(26.0)))  # head-on: within ±15° and ±20°
+    assert np.mean(noses[0.0] > 0) > 0.1  # the default mix also flies away from the camera
+    with pytest.raises(ValueError, match="approach_fraction"):
+        DatasetConfig(approach_fraction=1.5)

@@ -140,3 +140,27 @@ def test_runtime_on_the_exported_model(exported):
     np.testing.assert_allclose(windowed.boxes[0], [100, 200, 108, 208])  # full resolution in the window
     with pytest.raises(ValueError, match="uint8"):
         det.detect(frame.astype(np.float32))
+
+
+def test_training_uses_every_folder_and_resumes_only_with_its_own_settings(tmp_path):
+    from uav_landing_vision.camera import CameraModel, save_camera_info_yaml
+    from uav_landing_vision.detection.dataset import DatasetConfig, generate
+    from uav_landing_vision.detection.train import TrainConfig, train
+
+    camera = CameraModel(192, 108, np.array([[165.0, 0, 96.0], [0, 165.0, 54.0], [0, 0, 1]]))
+    save_camera_info_yaml(camera, tmp_path / "cam.yaml")
+    folders = []
+    for seed, approach in ((1, 0.0), (2, 1.0)):
+        folders.append(str(tmp_path / f"data{seed}"))
+        generate(DatasetConfig(count=4, seed=seed, camera_info=str(tmp_path / "cam.yaml"), families=("normal",),
+                               banks_per_family=1, approach_fraction=approach), folders[-1], progress=False)
+    cfg = TrainConfig(data=tuple(folders), out=str(tmp_path / "run"), epochs=1, batch=2, input_size=(192, 128),
+                      crop=(96, 64), width=8, threads=1)
+    log = train(cfg, progress=False)
+    assert (log["train_images"], log["val_images"]) == (6, 2)  # every 10th image of each folder validates
+    assert len(log["epochs"]) == 1 and np.isfinite(log["epochs"][0]["loss"])
+    assert (tmp_path / "run" / "last.pt").is_file() and (tmp_path / "run" / "train_log.json").is_file()
+    with pytest.raises(ValueError, match="other settings"):
+        train(TrainConfig(**{**cfg.__dict__, "lr": 1e-3}), resume=True, progress=False)
+    with pytest.raises(FileNotFoundError, match="dataset.json"):
+        train(TrainConfig(**{**cfg.__dict__, "data": (str(tmp_path),)}), progress=False)

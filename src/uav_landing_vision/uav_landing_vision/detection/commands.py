@@ -17,11 +17,14 @@ def register(sub) -> None:
     p.add_argument("--images", default="", help="folder of user background images (family 'images')")
     p.add_argument("--video", default="", help="video file or bag (family 'video')")
     p.add_argument("--camera", default="camera.yaml", help="camera_info YAML (config/ name or path)")
+    p.add_argument("--approach-fraction", type=float, default=0.0,
+                   help="fraction of head-on approach attitudes (default: 0; the rest landing-like/random)")
     p.add_argument("--workers", type=int, default=1, help="processes generating in parallel (default: 1)")
     p.set_defaults(func=_make_data)
 
     p = sub.add_parser("train-detector", help="train the detector on the CPU and export it to ONNX")
-    p.add_argument("--data", type=Path, default=Path("out/detection_data"))
+    p.add_argument("--data", type=Path, nargs="+", default=[Path("out/detection_data")],
+                   help="dataset folder(s) of make-detection-data, used together (default: out/detection_data)")
     p.add_argument("--out", type=Path, default=Path("out/detector_train"), help="run folder (checkpoints, log)")
     p.add_argument("--epochs", type=int, default=30)
     p.add_argument("--batch", type=int, default=16)
@@ -31,7 +34,8 @@ def register(sub) -> None:
     p.add_argument("--width", type=int, default=48, help="network width (stride-8 channels)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=2)
-    p.add_argument("--max-images", type=int, default=0, help="use the first N images only (0: all)")
+    p.add_argument("--loader-workers", type=int, default=0, help="image-decoding processes (default: 0)")
+    p.add_argument("--max-images", type=int, default=0, help="use the first N images of each folder only (0: all)")
     p.add_argument("--resume", action="store_true", help="continue from OUT/last.pt")
     p.add_argument("--export", type=Path, default=None, help="ONNX path (default: OUT/detector.onnx)")
     p.set_defaults(func=_train)
@@ -52,7 +56,7 @@ def _make_data(args) -> int:
     families = tuple(f.strip() for f in args.families.split(",") if f.strip())
     try:
         cfg = DatasetConfig(count=args.count, seed=args.seed, families=families, image_dir=args.images,
-                            video=args.video, camera_info=args.camera)
+                            video=args.video, camera_info=args.camera, approach_fraction=args.approach_fraction)
         summary = generate(cfg, args.out, workers=args.workers)
     except (ValueError, FileExistsError) as exc:
         raise SystemExit(f"make-detection-data: {exc}") from None
@@ -67,9 +71,9 @@ def _train(args) -> int:
     from .train import TrainConfig, load_trained, train
 
     try:
-        cfg = TrainConfig(data=str(args.data), out=str(args.out), epochs=args.epochs, batch=args.batch,
+        cfg = TrainConfig(data=tuple(str(d) for d in args.data), out=str(args.out), epochs=args.epochs, batch=args.batch,
                           lr=args.lr, input_size=args.input, crop=args.crop, width=args.width, seed=args.seed,
-                          threads=args.threads, max_images=args.max_images)
+                          threads=args.threads, loader_workers=args.loader_workers, max_images=args.max_images)
     except ValueError as exc:
         raise SystemExit(f"train-detector: {exc}") from None
     t0 = time.perf_counter()

@@ -40,6 +40,11 @@ class DatasetConfig:
     range_m: tuple[float, float] = (5.0, 150.0)  # log-uniform
     negative_fraction: float = 0.1
     partial_fraction: float = 0.1  # UAV centre drawn up to 0.3 frame outside the image
+    # Attitudes: this fraction flies an approach (nose to the camera, banked ±40° about the line
+    # of sight, nose ±15° up/down and ±20° left/right: the head-on views of a landing, boxes up
+    # to ~6:1); of the rest, 60 % are "landing-like" (±60°, ±30°, ±60° about the camera's x, y,
+    # z axes from facing the camera) and 40 % uniformly random.
+    approach_fraction: float = 0.0
     coverage_threshold: float = 0.5  # binarisation of the rendered coverage
     min_visible_px: int = 4
     noise_sigma: tuple[float, float] = (0.0, 6.0)
@@ -58,6 +63,8 @@ class DatasetConfig:
             raise ValueError("need count ≥ 1, banks_per_family ≥ 1 and 0 < range_m[0] < range_m[1]")
         if not (0 <= self.negative_fraction < 1 and 0 <= self.partial_fraction <= 1 and 0 < self.coverage_threshold < 1):
             raise ValueError("negative_fraction in [0,1), partial_fraction in [0,1], coverage_threshold in (0,1)")
+        if not 0 <= self.approach_fraction <= 1:
+            raise ValueError(f"approach_fraction must be in [0, 1], got {self.approach_fraction}")
 
 
 def roi_from_obb(obb: Obb, width: int, height: int) -> np.ndarray | None:
@@ -106,15 +113,19 @@ _BODY_FROM_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.
 
 def random_pose(rng: np.random.Generator, camera, cfg: DatasetConfig) -> tuple[np.ndarray, np.ndarray]:
     """A UAV pose ``(quat, trans)`` in the camera frame: log-uniform range, centre in (or, for a
-    partial case, around) the image; 60 % landing-like attitudes, 40 % uniformly random."""
+    partial case, around) the image; attitudes as :class:`DatasetConfig` says."""
     r = np.exp(rng.uniform(*np.log(cfg.range_m)))
     margin = 0.3 if rng.random() < cfg.partial_fraction else 0.0
     u = rng.uniform(-margin, 1 + margin) * camera.width
     v = rng.uniform(-margin, 1 + margin) * camera.height
     ray = np.array([(u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy, 1.0])
     trans = r * ray / np.linalg.norm(ray)
-    if rng.random() < 0.6:
-        angles = np.radians(rng.uniform([-60, -30, -60], [60, 30, 60]))  # roll, pitch, yaw
+    kind = rng.random()
+    if kind < cfg.approach_fraction:
+        angles = np.radians(rng.uniform([-15, -20, -40], [15, 20, 40]))  # about the camera x, y, z
+        quat = quat_multiply(matrix_to_quat(euler_zyx_to_matrix(angles)), _FACING)
+    elif kind < cfg.approach_fraction + 0.6 * (1 - cfg.approach_fraction):
+        angles = np.radians(rng.uniform([-60, -30, -60], [60, 30, 60]))  # about the camera x, y, z
         quat = quat_multiply(matrix_to_quat(euler_zyx_to_matrix(angles)), _FACING)
     else:
         quat = quat_normalise(rng.standard_normal(4))

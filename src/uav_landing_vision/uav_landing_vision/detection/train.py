@@ -5,7 +5,7 @@ below 48 px, 16 below 144 px, else 32); its positive cells are the cell holding 
 and those of the 3×3 neighbourhood whose centres fall inside the box. Loss: sigmoid focal
 loss on objectness (all cells) + GIoU on the positives, both per positive. Every epoch
 writes ``last.pt`` (network, optimiser, scheduler, RNG states) so ``--resume`` continues
-bit for bit; the validation split (every 10th image) gives AP50 after each epoch.
+bit for bit; the validation split (every 10th image of each folder) gives AP50 after each epoch.
 """
 
 import json
@@ -29,7 +29,7 @@ VAL_EVERY = 10  # image i is validation when i % VAL_EVERY == 0
 
 @dataclass(frozen=True)
 class TrainConfig:
-    data: str = "out/detection_data"
+    data: tuple[str, ...] = ("out/detection_data",)  # dataset folders, used together
     out: str = "out/detector_train"
     epochs: int = 30
     batch: int = 16
@@ -40,35 +40,44 @@ class TrainConfig:
     width: int = 48
     seed: int = 0
     threads: int = 2
-    max_images: int = 0  # use only the first N images (0: all)
+    loader_workers: int = 0  # processes decoding images alongside the training (0: in the loop)
+    max_images: int = 0  # use only the first N images of each folder (0: all)
 
     def __post_init__(self):
-        if self.epochs < 1 or self.batch < 1 or self.lr <= 0 or self.width < 8 or self.threads < 1:
-            raise ValueError("need epochs ≥ 1, batch ≥ 1, lr > 0, width ≥ 8, threads ≥ 1")
+        if (self.epochs < 1 or self.batch < 1 or self.lr <= 0 or self.width < 8 or self.threads < 1
+                or self.loader_workers < 0):
+            raise ValueError("need epochs ≥ 1, batch ≥ 1, lr > 0, width ≥ 8, threads ≥ 1, loader_workers ≥ 0")
         if any(s % max(STRIDES) for s in self.input_size + self.crop):
             raise ValueError(f"input_size and crop must be multiples of {max(STRIDES)}")
+        if not self.data:
+            raise ValueError("no dataset folder given")
 
 
 class LetterboxedImages(torch.utils.data.Dataset):
-    """Images of a generated dataset, letterboxed to the input size; random horizontal flip."""
+    """Images ``(folder, index)`` of generated datasets, letterboxed to the input size; random
+    horizontal flip and crop when augmenting."""
 
-    def __init__(self, root, indices, input_size, seed: int, augment: bool, crop=(0, 0)):
-        meta = json.loads((Path(root) / "dataset.json").read_text())
-        self.root, self.indices, self.input_size = Path(root), list(indices), input_size
-        self.size = (meta["width"], meta["height"])
+    def __init__(self, items, input_size, seed: int, augment: bool, crop=(0, 0)):
+        self.items, self.input_size = list(items), input_size
+        self.sizes = {}
+        for root, _ in self.items:
+            if root not in self.sizes:
+                meta = json.loads((Path(root) / "dataset.json").read_text())
+                self.sizes[root] = (meta["width"], meta["height"])
+        self.folders = {root: n for n, root in enumerate(self.sizes)}
         self.seed, self.augment, self.epoch, self.crop = seed, augment, 0, crop
 
     def __len__(self):
-        return len(self.indices)
+        return len(self.items)
 
     def __getitem__(self, k):
-        i = self.indices[k]
-        bgr = cv2.imread(str(self.root / "images" / f"{i:06d}.jpg"), cv2.IMREAD_COLOR)
+        root, i = self.items[k]
+        bgr = cv2.imread(str(Path(root) / "images" / f"{i:06d}.jpg"), cv2.IMREAD_COLOR)
         if bgr is None:
-            raise FileNotFoundError(f"cannot read image {i} of {self.root}")
+            raise FileNotFoundError(f"cannot read image {i} of {root}")
         img, lb = letterbox(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), self.input_size)
-        boxes = lb.to_input(read_labels(self.root / "labels" / f"{i:06d}.txt", *self.size))
-        rng = np.random.default_rng(np.random.SeedSequence([self.seed, self.epoch, i]))
+        boxes = lb.to_input(read_labels(Path(root) / "labels" / f"{i:06d}.txt", *self.sizes[root]))
+        rng = np.random.default_rng(np.random.SeedSequence([self.seed, self.epoch, self.folders[root], i]))
         if self.augment and rng.random() < 0.5:
             img = img[:, ::-1]
             boxes = np.stack([img.shape[1] - boxes[:, 2], boxes[:, 1], img.shape[1] - boxes[:, 0], boxes[:, 3]], 1)
@@ -179,16 +188,22 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
     out.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(cfg.threads)
-    meta = json.loads((Path(cfg.data) / "dataset.json").read_text())
-    count = meta["images"] if cfg.max_images <= 0 else min(cfg.max_images, meta["images"])
-    val_idx = [i for i in range(count) if i % VAL_EVERY == 0]
-    train_idx = [i for i in range(count) if i % VAL_EVERY != 0]
-    train_set = LetterboxedImages(cfg.data, train_idx, cfg.input_size, cfg.seed, augment=True, crop=cfg.crop)
-    val_set = LetterboxedImages(cfg.data, val_idx, cfg.input_size, cfg.seed, augment=False)
+    val_items, train_items = [], []
+    for root in cfg.data:
+        meta_path = Path(root) / "dataset.json"
+        if not meta_path.is_file():
+            raise FileNotFoundError(f"{root} is not a dataset made by make-detection-data (no dataset.json)")
+        images = json.loads(meta_path.read_text())["images"]
+        count = images if cfg.max_images <= 0 else min(cfg.max_images, images)
+        val_items += [(root, i) for i in range(count) if i % VAL_EVERY == 0]
+        train_items += [(root, i) for i in range(count) if i % VAL_EVERY != 0]
+    train_set = LetterboxedImages(train_items, cfg.input_size, cfg.seed, augment=True, crop=cfg.crop)
+    val_set = LetterboxedImages(val_items, cfg.input_size, cfg.seed, augment=False)
     shuffle = torch.Generator().manual_seed(cfg.seed)
     train_loader = torch.utils.data.DataLoader(train_set, cfg.batch, shuffle=True, generator=shuffle,
-                                               collate_fn=collate, drop_last=len(train_set) > cfg.batch)
-    val_loader = torch.utils.data.DataLoader(val_set, cfg.batch, collate_fn=collate)
+                                               collate_fn=collate, drop_last=len(train_set) > cfg.batch,
+                                               num_workers=cfg.loader_workers)
+    val_loader = torch.utils.data.DataLoader(val_set, cfg.batch, collate_fn=collate, num_workers=cfg.loader_workers)
 
     net = UavDetectorNet(cfg.width)
     optim = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
@@ -196,7 +211,7 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
     warm = max(1, total // 20)
     sched = torch.optim.lr_scheduler.LambdaLR(  # linear warm-up over 5 %, then cosine decay
         optim, lambda k: (k + 1) / warm if k < warm else 0.5 * (1 + np.cos(np.pi * (k - warm) / max(1, total - warm))))
-    log = {"config": asdict(cfg), "train_images": len(train_idx), "val_images": len(val_idx), "epochs": []}
+    log = {"config": asdict(cfg), "train_images": len(train_items), "val_images": len(val_items), "epochs": []}
     start_epoch, ckpt = 0, out / "last.pt"
     if resume:
         if not ckpt.exists():
@@ -223,7 +238,7 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
             loss.backward()
             optim.step()
             sched.step()
-            totals += [float(loss), float(obj), float(box)]
+            totals += [float(torch.as_tensor(v).detach()) for v in (loss, obj, box)]
             n += 1
             bar.set_postfix(loss=f"{totals[0] / n:.3f}")
         seconds = time.perf_counter() - t0
