@@ -1,4 +1,4 @@
-"""The ``uav-landing`` command: every registered subcommand parses, and the demo writes frames."""
+"""The ``uav-landing`` command: every registered subcommand parses; the demo refuses bad arguments."""
 
 import pytest
 
@@ -14,12 +14,6 @@ def test_every_subcommand_has_help(capsys):
             parser.parse_args([name, "--help"])
         assert exc.value.code == 0
     capsys.readouterr()
-
-
-def test_demo_renders_flyby_frames(tmp_path, capsys):
-    assert main(["demo", "--out", str(tmp_path), "--frames", "2"]) == 0
-    assert sorted(p.name for p in tmp_path.glob("*.png")) == ["flyby_000.png", "flyby_001.png"]
-    assert str(tmp_path) in capsys.readouterr().out
 
 
 def test_demo_rejects_bad_frame_count():

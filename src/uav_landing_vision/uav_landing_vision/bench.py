@@ -8,6 +8,7 @@ def register(sub) -> None:
 
 
 def _run(args) -> int:
+    from .detection import benchmark as detector_benchmark
     from .filters import benchmark as filter_benchmark
     from .render import benchmark as render_benchmark
     from .tracking import likelihood_benchmark, upf_benchmark
@@ -23,4 +24,9 @@ def _run(args) -> int:
         print(f"{name:>10} {ms:8.3f} ms")
     print()
     print(upf_benchmark.format_result(upf_benchmark.run()))
+    print()
+    try:
+        print(detector_benchmark.format_result(detector_benchmark.run(repeats=args.repeats)))
+    except (FileNotFoundError, OSError) as exc:
+        print(f"Detector: not measured, no model ({exc})")
     return 0

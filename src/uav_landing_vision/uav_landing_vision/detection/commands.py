@@ -38,6 +38,8 @@ def register(sub) -> None:
     p.add_argument("--max-images", type=int, default=0, help="use the first N images of each folder only (0: all)")
     p.add_argument("--resume", action="store_true", help="continue from OUT/last.pt")
     p.add_argument("--export", type=Path, default=None, help="ONNX path (default: OUT/detector.onnx)")
+    p.add_argument("--export-only", action="store_true",
+                   help="export OUT/last.pt (e.g. of an interrupted run) without training")
     p.set_defaults(func=_train)
 
     p = sub.add_parser("eval-detector", help="precision-recall, AP50, recall by size and speed on a bag")
@@ -66,6 +68,7 @@ def _make_data(args) -> int:
 
 def _train(args) -> int:
     import time
+    from dataclasses import asdict
 
     from .export import export_onnx
     from .train import TrainConfig, load_trained, train
@@ -77,14 +80,26 @@ def _train(args) -> int:
     except ValueError as exc:
         raise SystemExit(f"train-detector: {exc}") from None
     t0 = time.perf_counter()
-    log = train(cfg, resume=args.resume)
+    if args.export_only:
+        import torch
+
+        checkpoint = args.out / "last.pt"
+        if not checkpoint.is_file():
+            raise SystemExit(f"train-detector: --export-only: no checkpoint {checkpoint}")
+        state = torch.load(checkpoint, weights_only=False)
+        if state["config"] != asdict(cfg):
+            raise SystemExit(f"train-detector: {checkpoint} was made with other settings: {state['config']}")
+        log = state["log"]
+    else:
+        log = train(cfg, resume=args.resume)
     onnx_path = args.export or args.out / "detector.onnx"
     last = log["epochs"][-1] if log["epochs"] else {}
     description = (f"UavDetectorNet width {cfg.width}, input {cfg.input_size[0]}x{cfg.input_size[1]}, "
-                   f"{log['train_images']} training images, {len(log['epochs'])} epochs, "
+                   f"{log['train_images']} training images, {len(log['epochs'])} of {cfg.epochs} epochs, "
                    f"val AP50 {last.get('val_ap50', float('nan')):.3f}")
     export_onnx(load_trained(cfg), onnx_path, cfg.input_size, description)
-    print(f"trained in {time.perf_counter() - t0:.0f} s; exported {onnx_path} ({description})")
+    done = "checkpoint" if args.export_only else f"trained in {time.perf_counter() - t0:.0f} s"
+    print(f"{done}; exported {onnx_path} ({description})")
     return 0
 
 

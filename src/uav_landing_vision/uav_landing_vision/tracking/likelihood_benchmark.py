@@ -8,7 +8,7 @@ from ..camera import load_camera_info_yaml
 from ..model import fixed_wing_mesh
 from ..render import Renderer
 from ..render.benchmark import random_poses
-from ..render.flyby import sky_and_sea
+from ..render.backdrop import sky_and_sea
 from ..resources import config_path
 from .likelihood import LIKELIHOODS, make_likelihood
 
