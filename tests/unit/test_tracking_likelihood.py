@@ -9,7 +9,7 @@ from uav_landing_vision.config import ConfigError
 from uav_landing_vision.geometry import euler_zyx_to_quat, quat_multiply
 from uav_landing_vision.model import fixed_wing_mesh
 from uav_landing_vision.render import Renderer, SilhouetteBatch
-from uav_landing_vision.render.flyby import sky_and_sea
+from uav_landing_vision.render.backdrop import sky_and_sea
 from uav_landing_vision.resources import config_path
 from uav_landing_vision.sim.trajectory import FACING_CAMERA
 from uav_landing_vision.tracking.likelihood import (
