@@ -56,6 +56,8 @@ def graph_run(landing, tmp_path_factory, ros_domain_id):
            "--domain-id", str(ros_domain_id),
            "--param", "bag_player:ack_topic=uav/tracker_status",
            "--param", "bag_player:ack_type=uav_landing_msgs/msg/TrackerStatus",
+           # More than the shipped 3 s for the processes' DDS matching: a loaded CI machine.
+           "--param", "bag_player:ready_settle_s=6.0",
            "--param", f"evaluator:out_dir={report}",
            "--param", f"evaluator:variant={tracker.variant}N{tracker.iterations}"]
     log = out / "graph.log"
