@@ -27,6 +27,6 @@ def _run(args) -> int:
     print()
     try:
         print(detector_benchmark.format_result(detector_benchmark.run(repeats=args.repeats)))
-    except (FileNotFoundError, OSError) as exc:
+    except OSError as exc:
         print(f"Detector: not measured, no model ({exc})")
     return 0

@@ -9,7 +9,6 @@
    on a few frames.
 """
 
-import os
 from pathlib import Path
 
 import cv2
@@ -32,7 +31,7 @@ def register(sub) -> None:
 
 
 def _run(args) -> int:
-    from .graph import GRAPH_NODES, Graph
+    from .graph import GRAPH_NODES, Graph, node_environment
     from .resources import config_path
     from .sim import read_pose_csv
 
@@ -42,11 +41,9 @@ def _run(args) -> int:
     bag = simulated_bag(out / "bags", args.scenario, args.seed, args.frames)
     report = out / "evaluation"
     overrides = graph_overrides(bag, report, sequence=bag.name)
-    env = dict(os.environ, PYTHONUNBUFFERED="1", ROS_DOMAIN_ID=str(args.domain_id))
-    package_root = str(Path(__file__).resolve().parents[1])
-    env["PYTHONPATH"] = os.pathsep.join(p for p in (package_root, env.get("PYTHONPATH")) if p)
     print(f"[demo] tracking {bag} through the graph ({', '.join(GRAPH_NODES)}), ROS_DOMAIN_ID {args.domain_id}",
           flush=True)
+    env = node_environment(args.domain_id)
     code = Graph(list(GRAPH_NODES), config_path("tracker.yaml").parent, overrides, env, stop_timeout=10.0).run()
     if code != 0:
         raise SystemExit(f"demo: the graph failed (exit {code}); see the node logs above")

@@ -63,13 +63,19 @@ def _run(args) -> int:
     except ValueError as exc:
         print(f"uav-landing graph: {exc}", file=sys.stderr)
         return 2
+    return Graph(names, args.config, overrides, node_environment(args.domain_id), args.stop_timeout, args.drain).run()
+
+
+def node_environment(domain_id: int | None = None) -> dict:
+    """The environment of the node processes: this one's, unbuffered, with this package
+    importable and, if given, ``ROS_DOMAIN_ID``."""
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     # The nodes import this very package, wherever it is (source tree or install space).
     package_root = str(Path(__file__).resolve().parents[1])
     env["PYTHONPATH"] = os.pathsep.join(p for p in (package_root, env.get("PYTHONPATH")) if p)
-    if args.domain_id is not None:
-        env["ROS_DOMAIN_ID"] = str(args.domain_id)
-    return Graph(names, args.config, overrides, env, args.stop_timeout, args.drain).run()
+    if domain_id is not None:
+        env["ROS_DOMAIN_ID"] = str(domain_id)
+    return env
 
 
 def _plan(args) -> tuple[list[str], dict]:

@@ -68,10 +68,9 @@ def _make_data(args) -> int:
 
 def _train(args) -> int:
     import time
-    from dataclasses import asdict
 
     from .export import export_onnx
-    from .train import TrainConfig, load_trained, train
+    from .train import TrainConfig, load_checkpoint, train, trained_network
 
     try:
         cfg = TrainConfig(data=tuple(str(d) for d in args.data), out=str(args.out), epochs=args.epochs, batch=args.batch,
@@ -80,24 +79,19 @@ def _train(args) -> int:
     except ValueError as exc:
         raise SystemExit(f"train-detector: {exc}") from None
     t0 = time.perf_counter()
-    if args.export_only:
-        import torch
-
-        checkpoint = args.out / "last.pt"
-        if not checkpoint.is_file():
-            raise SystemExit(f"train-detector: --export-only: no checkpoint {checkpoint}")
-        state = torch.load(checkpoint, weights_only=False)
-        if state["config"] != asdict(cfg):
-            raise SystemExit(f"train-detector: {checkpoint} was made with other settings: {state['config']}")
-        log = state["log"]
-    else:
-        log = train(cfg, resume=args.resume)
+    try:
+        if not args.export_only:
+            train(cfg, resume=args.resume)
+        state = load_checkpoint(cfg)
+    except (FileNotFoundError, ValueError) as exc:
+        raise SystemExit(f"train-detector: {exc}") from None
+    log = state["log"]
     onnx_path = args.export or args.out / "detector.onnx"
     last = log["epochs"][-1] if log["epochs"] else {}
     description = (f"UavDetectorNet width {cfg.width}, input {cfg.input_size[0]}x{cfg.input_size[1]}, "
                    f"{log['train_images']} training images, {len(log['epochs'])} of {cfg.epochs} epochs, "
                    f"val AP50 {last.get('val_ap50', float('nan')):.3f}")
-    export_onnx(load_trained(cfg), onnx_path, cfg.input_size, description)
+    export_onnx(trained_network(cfg, state), onnx_path, cfg.input_size, description)
     done = "checkpoint" if args.export_only else f"trained in {time.perf_counter() - t0:.0f} s"
     print(f"{done}; exported {onnx_path} ({description})")
     return 0

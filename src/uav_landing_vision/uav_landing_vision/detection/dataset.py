@@ -121,14 +121,12 @@ def random_pose(rng: np.random.Generator, camera, cfg: DatasetConfig) -> tuple[n
     ray = np.array([(u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy, 1.0])
     trans = r * ray / np.linalg.norm(ray)
     kind = rng.random()
-    if kind < cfg.approach_fraction:
-        angles = np.radians(rng.uniform([-15, -20, -40], [15, 20, 40]))  # about the camera x, y, z
-        quat = quat_multiply(matrix_to_quat(euler_zyx_to_matrix(angles)), _FACING)
-    elif kind < cfg.approach_fraction + 0.6 * (1 - cfg.approach_fraction):
-        angles = np.radians(rng.uniform([-60, -30, -60], [60, 30, 60]))  # about the camera x, y, z
-        quat = quat_multiply(matrix_to_quat(euler_zyx_to_matrix(angles)), _FACING)
-    else:
+    if kind >= cfg.approach_fraction + 0.6 * (1 - cfg.approach_fraction):
         quat = quat_normalise(rng.standard_normal(4))
+    else:  # turned from facing the camera, up to these angles about the camera's x, y, z axes
+        limits = np.array([15.0, 20.0, 40.0] if kind < cfg.approach_fraction else [60.0, 30.0, 60.0])
+        angles = np.radians(rng.uniform(-limits, limits))
+        quat = quat_multiply(matrix_to_quat(euler_zyx_to_matrix(angles)), _FACING)
     return quat, trans
 
 
@@ -209,16 +207,22 @@ def photometric(image: np.ndarray, rng: np.random.Generator, cfg: DatasetConfig)
     return np.clip(img * 255.0 + 0.5, 0, 255).astype(np.uint8)
 
 
+def dataset_camera(cfg: DatasetConfig):
+    """The rectified camera the images are drawn with."""
+    from ..camera import load_camera_info_yaml
+    from ..resources import config_file
+
+    return load_camera_info_yaml(config_file(cfg.camera_info)).rectified()
+
+
 class SampleGenerator:
     """Makes image ``i`` of a dataset: ``(rgb uint8, ROI [x0,y0,x1,y1] or None)``."""
 
     def __init__(self, cfg: DatasetConfig, mesh=None):
-        from ..camera import load_camera_info_yaml
         from ..model import fixed_wing_mesh
         from ..render import Renderer
-        from ..resources import config_file
 
-        self.camera = load_camera_info_yaml(config_file(cfg.camera_info)).rectified()
+        self.camera = dataset_camera(cfg)
         self.cfg = cfg
         self.renderer = Renderer(self.camera, mesh if mesh is not None else fixed_wing_mesh("high"))
         self.backgrounds = BackgroundSource(self.camera, cfg)
@@ -277,25 +281,23 @@ def generate(cfg: DatasetConfig, out_dir, progress: bool = True, workers: int = 
         raise FileExistsError(f"{out} already holds a dataset; choose a new folder")
     (out / "images").mkdir(parents=True, exist_ok=True)
     (out / "labels").mkdir(parents=True, exist_ok=True)
+    camera = dataset_camera(cfg)
     chunks = [range(a, min(a + 25, cfg.count)) for a in range(0, cfg.count, 25)]
     bar = tqdm(total=cfg.count, desc="detection data", unit="img", disable=not progress)
     widths: list[float | None] = []
-    if workers == 1:
-        _start_worker(cfg)
-        for chunk in chunks:
-            widths += _write_images(out, chunk)
-            bar.update(len(chunk))
-        camera = _WORKER.camera
+    pool = None
+    if workers > 1:
+        pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
+                                   initializer=_start_worker, initargs=(cfg,))
     else:
-        ctx = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_start_worker, initargs=(cfg,)) as pool:
-            for chunk_widths in pool.map(_write_images, [out] * len(chunks), chunks):
-                widths += chunk_widths
-                bar.update(len(chunk_widths))
-        from ..camera import load_camera_info_yaml
-        from ..resources import config_file
-
-        camera = load_camera_info_yaml(config_file(cfg.camera_info)).rectified()
+        _start_worker(cfg)
+    try:
+        for chunk_widths in (pool.map if pool else map)(_write_images, [out] * len(chunks), chunks):
+            widths += chunk_widths
+            bar.update(len(chunk_widths))
+    finally:
+        if pool:
+            pool.shutdown(cancel_futures=True)
     bar.close()
     found = [x for x in widths if x is not None]
     summary = {"config": asdict(cfg), "width": camera.width, "height": camera.height, "images": cfg.count,

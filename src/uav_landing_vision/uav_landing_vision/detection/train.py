@@ -214,11 +214,7 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
     log = {"config": asdict(cfg), "train_images": len(train_items), "val_images": len(val_items), "epochs": []}
     start_epoch, ckpt = 0, out / "last.pt"
     if resume:
-        if not ckpt.exists():
-            raise FileNotFoundError(f"--resume: no checkpoint {ckpt}")
-        state = torch.load(ckpt, weights_only=False)
-        if state["config"] != asdict(cfg):
-            raise ValueError(f"--resume: {ckpt} was made with other settings: {state['config']}")
+        state = load_checkpoint(cfg)
         net.load_state_dict(state["net"])
         optim.load_state_dict(state["optim"])
         sched.load_state_dict(state["sched"])
@@ -255,8 +251,19 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
     return log
 
 
-def load_trained(cfg: TrainConfig) -> UavDetectorNet:
-    """The network of the run's last checkpoint."""
+def load_checkpoint(cfg: TrainConfig) -> dict:
+    """The run's ``last.pt``; FileNotFoundError without one, ValueError if other settings made it."""
+    ckpt = Path(cfg.out) / "last.pt"
+    if not ckpt.exists():
+        raise FileNotFoundError(f"no checkpoint {ckpt}")
+    state = torch.load(ckpt, weights_only=False)
+    if state["config"] != asdict(cfg):
+        raise ValueError(f"{ckpt} was made with other settings: {state['config']}")
+    return state
+
+
+def trained_network(cfg: TrainConfig, state: dict) -> UavDetectorNet:
+    """The network of a checkpoint ``state`` of the run ``cfg``, in eval mode."""
     net = UavDetectorNet(cfg.width)
-    net.load_state_dict(torch.load(Path(cfg.out) / "last.pt", weights_only=False)["net"])
+    net.load_state_dict(state["net"])
     return net.eval()
