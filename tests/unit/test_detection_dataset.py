@@ -1,34 +1,53 @@
-"""Detection dataset: Fig. 4.4 annotation (binarise → oriented box → ROI), YOLO labels, determinism."""
+"""Detection dataset: Fig. 4.4 labels (model outline → oriented box → ROI), YOLO labels, landing frames,
+determinism."""
 
+import cv2
 import numpy as np
 import pytest
 
 from uav_landing_vision.camera import CameraModel, save_camera_info_yaml
-from uav_landing_vision.detection.dataset import DatasetConfig, annotate, generate, read_labels, yolo_line
+from uav_landing_vision.detection.dataset import DatasetConfig, generate, model_roi, read_labels, yolo_line
 
 
-def test_annotation_of_an_upright_rectangle_is_its_pixel_extent():
-    coverage = np.zeros((80, 100), np.float32)
-    coverage[30:34, 20:30] = 0.9
-    coverage[50, 50] = 0.4  # below the binarisation threshold
-    np.testing.assert_allclose(annotate(coverage), [20, 30, 30, 34], atol=1e-4)
+K = np.array([[100.0, 0.0, 50.0], [0.0, 100.0, 40.0], [0.0, 0.0, 1.0]])
+IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])  # scalar last
 
 
-def test_annotation_of_a_diagonal_is_the_roi_of_its_oriented_box():
-    # Pixels (i, i), i = 10..19: the oriented box lies along 45°, 14.14 × 1.41 px; its corners
-    # reach half a pixel beyond the tight axis-aligned box [10, 10, 20, 20] on every side.
-    coverage = np.zeros((40, 40), np.float32)
-    idx = np.arange(10, 20)
-    coverage[idx, idx] = 1.0
-    np.testing.assert_allclose(annotate(coverage), [9.5, 9.5, 20.5, 20.5], atol=1e-3)
+def _plate(half_w: float, half_h: float, angle_deg: float = 0.0) -> np.ndarray:
+    """Corners of a thin plate in the body x-y plane, turned about body z."""
+    a = np.radians(angle_deg)
+    corners = np.array([[-half_w, -half_h], [half_w, -half_h], [half_w, half_h], [-half_w, half_h]])
+    xy = corners @ np.array([[np.cos(a), np.sin(a)], [-np.sin(a), np.cos(a)]])
+    return np.c_[xy, np.zeros(4)]
 
 
-def test_annotation_is_clipped_to_the_image_and_empty_masks_give_none():
-    coverage = np.zeros((40, 60), np.float32)
-    coverage[0:5, 50:60] = 1.0
-    np.testing.assert_allclose(annotate(coverage), [50, 0, 60, 5], atol=1e-4)
-    assert annotate(np.zeros((40, 60), np.float32)) is None
-    assert annotate(coverage, min_pixels=51) is None
+def _opencv_extent(vertices, trans) -> np.ndarray:
+    uv = cv2.projectPoints(vertices, np.zeros(3), np.asarray(trans, float), K, None)[0].reshape(-1, 2)
+    return np.r_[uv.min(axis=0), uv.max(axis=0)] + 0.5  # pixel centres → pixel edges
+
+
+def test_model_roi_of_an_upright_plate_is_its_projected_extent():
+    vertices = _plate(1.0, 0.05)  # 20 × 1 px at 10 m: thinner than most pixels' coverage tests
+    box = model_roi(vertices, K, IDENTITY, [0.0, 0.0, 10.0], 100, 80)
+    np.testing.assert_allclose(box, _opencv_extent(vertices, [0.0, 0.0, 10.0]), atol=1e-4)
+    np.testing.assert_allclose(box, [40.5, 40.0, 60.5, 41.0], atol=1e-4)
+
+
+def test_model_roi_of_a_turned_plate_is_the_roi_of_its_oriented_box():
+    # A 45° square's oriented box is the square itself; its ROI is the diamond's extent.
+    vertices = _plate(1.0, 1.0, 45.0)
+    box = model_roi(vertices, K, IDENTITY, [0.0, 0.0, 10.0], 100, 80)
+    np.testing.assert_allclose(box, _opencv_extent(vertices, [0.0, 0.0, 10.0]), atol=1e-3)
+    np.testing.assert_allclose(box[2] - box[0], 20 * np.sqrt(2), atol=1e-3)
+
+
+def test_model_roi_is_clipped_to_the_image_and_none_out_of_view():
+    vertices = _plate(1.0, 0.5)
+    box = model_roi(vertices, K, IDENTITY, [4.5, -4.0, 10.0], 100, 80)  # u 85..105, v -5..5
+    np.testing.assert_allclose(box, [85.5, 0.0, 100.0, 5.5], atol=1e-4)
+    assert model_roi(vertices, K, IDENTITY, [20.0, 0.0, 10.0], 100, 80) is None  # beside the image
+    assert model_roi(vertices, K, IDENTITY, [0.0, 0.0, -10.0], 100, 80) is None  # behind the camera
+    assert model_roi(vertices, K, IDENTITY, [0.0, 0.0, 0.5], 100, 80) is not None  # filling the frame
 
 
 def test_yolo_label_round_trip(tmp_path):
@@ -60,6 +79,12 @@ def test_dataset_is_deterministic_by_seed_whatever_the_workers(tmp_path):
         assert all(x.read_bytes() == y.read_bytes() for x, y in zip(a, b))
     with pytest.raises(FileExistsError):
         generate(cfg, tmp_path / "a", progress=False)
+    # An interrupted run (no dataset.json, the last images missing) is continued by running it again.
+    for name in ("dataset.json", "images/000003.jpg", "labels/000003.txt", "labels/000002.txt"):
+        (tmp_path / "b" / name).unlink()
+    assert generate(cfg, tmp_path / "b", progress=False) == first
+    assert all(x.read_bytes() == y.read_bytes() for x, y in zip(sorted((tmp_path / "a").rglob("*.*")),
+                                                                sorted((tmp_path / "b").rglob("*.*"))))
     with pytest.raises(ValueError, match="workers"):
         generate(cfg, tmp_path / "c", progress=False, workers=0)
 
@@ -80,3 +105,43 @@ def test_approach_attitudes_point_the_nose_at_the_camera():
     assert np.mean(noses[0.0] > 0) > 0.1  # the default mix also flies away from the camera
     with pytest.raises(ValueError, match="approach_fraction"):
         DatasetConfig(approach_fraction=1.5)
+
+
+def test_landing_frames_are_labelled_where_the_model_projects_through_the_lens():
+    """Frames of simulated landings: the label agrees with the model's vertices projected through
+    the distorted camera by OpenCV and then undistorted (the frame's own geometry)."""
+    from uav_landing_vision.camera import load_camera_info_yaml
+    from uav_landing_vision.detection.dataset import LandingFrames, dataset_camera
+    from uav_landing_vision.geometry import quat_to_matrix
+    from uav_landing_vision.model import fixed_wing_mesh
+    from uav_landing_vision.resources import config_file
+
+    cfg = DatasetConfig(families=("complex",), banks_per_family=1, landing_fraction=1.0)
+    mesh = fixed_wing_mesh("high")
+    frames = LandingFrames(cfg, dataset_camera(cfg), mesh)
+    raw_camera = load_camera_info_yaml(config_file("camera.yaml"))
+    rng = np.random.default_rng(3)
+    ranges = []
+    for _ in range(4):
+        image, box, (quat, trans) = frames.sample(rng)
+        assert image.shape == (720, 1280, 3) and image.dtype == np.uint8 and box is not None
+        ranges.append(np.linalg.norm(trans))
+        rvec = cv2.Rodrigues(quat_to_matrix(quat))[0]
+        raw_uv = cv2.projectPoints(mesh.vertices, rvec, trans, raw_camera.K, raw_camera.dist)[0]
+        uv = cv2.undistortPoints(raw_uv, raw_camera.K, raw_camera.dist, P=raw_camera.K).reshape(-1, 2)
+        extent = np.r_[uv.min(axis=0), uv.max(axis=0) + 1.0]  # pixel edges
+        assert np.all(np.abs(box - extent) < 2.5), (box, extent)
+    assert 5.0 < min(ranges) and max(ranges) < 105.0  # along the scenario's approach
+
+
+def test_landing_frames_need_a_simulator_family_and_the_scenario_camera(tmp_path):
+    with pytest.raises(ValueError, match="landing_fraction"):
+        DatasetConfig(landing_fraction=-0.1)
+    with pytest.raises(ValueError, match="'normal' or 'complex'"):
+        DatasetConfig(families=("images",), image_dir=str(tmp_path), landing_fraction=0.5)
+    camera = CameraModel(192, 108, np.array([[165.0, 0, 96.0], [0, 165.0, 54.0], [0, 0, 1]]))
+    save_camera_info_yaml(camera, tmp_path / "cam.yaml")
+    cfg = DatasetConfig(count=1, camera_info=str(tmp_path / "cam.yaml"), families=("complex",),
+                        banks_per_family=1, landing_fraction=1.0)
+    with pytest.raises(ValueError, match="camera_info must be the same"):
+        generate(cfg, tmp_path / "d", progress=False)

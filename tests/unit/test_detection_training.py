@@ -164,3 +164,17 @@ def test_training_uses_every_folder_and_resumes_only_with_its_own_settings(tmp_p
         train(TrainConfig(**{**cfg.__dict__, "lr": 1e-3}), resume=True, progress=False)
     with pytest.raises(FileNotFoundError, match="dataset.json"):
         train(TrainConfig(**{**cfg.__dict__, "data": (str(tmp_path),)}), progress=False)
+    # Fine-tuning: a new run starts from the first run's network (a zero-step run keeps it as is).
+    import torch
+
+    from uav_landing_vision.detection.train import load_checkpoint
+
+    first = load_checkpoint(cfg)["net"]
+    tuned = TrainConfig(**{**cfg.__dict__, "out": str(tmp_path / "tuned"), "lr": 1e-12, "weight_decay": 0.0,
+                           "init": str(tmp_path / "run" / "last.pt")})
+    train(tuned, progress=False)
+    state = load_checkpoint(tuned)["net"]
+    assert all(torch.allclose(state[k].float(), first[k].float(), atol=1e-6) for k in first
+               if "running" not in k and "num_batches" not in k)  # BatchNorm statistics move
+    with pytest.raises(FileNotFoundError, match="to start from"):
+        train(TrainConfig(**{**tuned.__dict__, "init": str(tmp_path / "none.pt")}), progress=False)

@@ -19,6 +19,8 @@ def register(sub) -> None:
     p.add_argument("--camera", default="camera.yaml", help="camera_info YAML (config/ name or path)")
     p.add_argument("--approach-fraction", type=float, default=0.0,
                    help="fraction of head-on approach attitudes (default: 0; the rest landing-like/random)")
+    p.add_argument("--landing-fraction", type=float, default=0.0,
+                   help="fraction of frames of simulated landings (default: 0)")
     p.add_argument("--workers", type=int, default=1, help="processes generating in parallel (default: 1)")
     p.set_defaults(func=_make_data)
 
@@ -36,6 +38,8 @@ def register(sub) -> None:
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--loader-workers", type=int, default=0, help="image-decoding processes (default: 0)")
     p.add_argument("--max-images", type=int, default=0, help="use the first N images of each folder only (0: all)")
+    p.add_argument("--init", type=Path, default=None,
+                   help="start from the network of this checkpoint (another run's last.pt): fine-tuning")
     p.add_argument("--resume", action="store_true", help="continue from OUT/last.pt")
     p.add_argument("--export", type=Path, default=None, help="ONNX path (default: OUT/detector.onnx)")
     p.add_argument("--export-only", action="store_true",
@@ -58,7 +62,8 @@ def _make_data(args) -> int:
     families = tuple(f.strip() for f in args.families.split(",") if f.strip())
     try:
         cfg = DatasetConfig(count=args.count, seed=args.seed, families=families, image_dir=args.images,
-                            video=args.video, camera_info=args.camera, approach_fraction=args.approach_fraction)
+                            video=args.video, camera_info=args.camera, approach_fraction=args.approach_fraction,
+                            landing_fraction=args.landing_fraction)
         summary = generate(cfg, args.out, workers=args.workers)
     except (ValueError, FileExistsError) as exc:
         raise SystemExit(f"make-detection-data: {exc}") from None
@@ -75,7 +80,8 @@ def _train(args) -> int:
     try:
         cfg = TrainConfig(data=tuple(str(d) for d in args.data), out=str(args.out), epochs=args.epochs, batch=args.batch,
                           lr=args.lr, input_size=args.input, crop=args.crop, width=args.width, seed=args.seed,
-                          threads=args.threads, loader_workers=args.loader_workers, max_images=args.max_images)
+                          threads=args.threads, loader_workers=args.loader_workers, max_images=args.max_images,
+                          init=str(args.init or ""))
     except ValueError as exc:
         raise SystemExit(f"train-detector: {exc}") from None
     t0 = time.perf_counter()

@@ -3,9 +3,13 @@
 Each image: a background (the simulator's ``normal``/``complex`` skies and seas seen in a
 random direction at a random time, a random crop/flip of a user image, or a frame of a
 video), the UAV shaded at a random pose 5–150 m away (sometimes partly out of the frame, or
-absent: a negative), then photometric jitter, blur, noise and JPEG coding. The label comes
-from the rendered UAV exactly as Fig. 4.4: binarise its coverage → oriented box
-(:func:`..boosting.obb.obb_from_mask`) → axis-aligned ROI.
+absent: a negative), then photometric jitter, blur, noise and JPEG coding. A configurable
+fraction are instead frames of simulated landings (:class:`LandingFrames`), made and
+undistorted exactly as the evaluation's sequences, with jitter and coding on top. The label comes
+from the model at the drawn pose as Fig. 4.4 (silhouette → oriented box → axis-aligned ROI),
+the silhouette's outline taken exactly from the projected model (:func:`model_roi`); a pose
+is labelled when at least ``min_visible_px`` pixels of its rendered coverage pass
+``coverage_threshold``, else it is drawn again.
 
 Layout: ``images/NNNNNN.jpg``, ``labels/NNNNNN.txt`` (YOLO: ``0 cx cy w h`` normalised to the
 image, empty for a negative) and ``dataset.json`` (settings, counts). Image ``i`` depends only
@@ -13,13 +17,12 @@ on ``(seed, i)`` and the settings.
 """
 
 import json
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from ..boosting.obb import Obb, obb_from_mask
 from ..geometry import euler_zyx_to_matrix, matrix_to_quat, quat_multiply, quat_normalise
 
 FAMILIES = ("normal", "complex", "images", "video")
@@ -45,7 +48,10 @@ class DatasetConfig:
     # to ~6:1); of the rest, 60 % are "landing-like" (±60°, ±30°, ±60° about the camera's x, y,
     # z axes from facing the camera) and 40 % uniformly random.
     approach_fraction: float = 0.0
-    coverage_threshold: float = 0.5  # binarisation of the rendered coverage
+    # This fraction of images are frames of simulated landings of the family's scenario
+    # (:class:`LandingFrames`); they always hold the UAV (negatives come from the rest).
+    landing_fraction: float = 0.0
+    coverage_threshold: float = 0.5  # binarisation of the rendered coverage (the visibility test)
     min_visible_px: int = 4
     noise_sigma: tuple[float, float] = (0.0, 6.0)
     blur_probability: float = 0.4
@@ -65,27 +71,40 @@ class DatasetConfig:
             raise ValueError("negative_fraction in [0,1), partial_fraction in [0,1], coverage_threshold in (0,1)")
         if not 0 <= self.approach_fraction <= 1:
             raise ValueError(f"approach_fraction must be in [0, 1], got {self.approach_fraction}")
+        if not 0 <= self.landing_fraction <= 1:
+            raise ValueError(f"landing_fraction must be in [0, 1], got {self.landing_fraction}")
+        if self.landing_fraction and not {"normal", "complex"} & set(self.families):
+            raise ValueError("landing frames need the 'normal' or 'complex' family")
 
 
-def roi_from_obb(obb: Obb, width: int, height: int) -> np.ndarray | None:
-    """Axis-aligned ROI ``[x0,y0,x1,y1]`` (pixel edges, pixel u covers [u, u+1)) enclosing the
-    oriented box, clipped to the image; None if nothing is left."""
-    corners = cv2.boxPoints(((obb.x, obb.y), (obb.w, obb.h), obb.theta)) + 0.5
+def model_roi(vertices: np.ndarray, K: np.ndarray, quat, trans, width: int, height: int) -> np.ndarray | None:
+    """Fig. 4.4 on the exact outline: the model's vertices projected at the pose (rectified
+    pinhole ``K``), their convex hull clipped to the image → minimum-area oriented box →
+    axis-aligned ROI ``[x0,y0,x1,y1]`` (pixel edges: pixel u covers [u, u+1)), clipped.
+
+    The oriented box of a binarised silhouette is that of its convex hull, and the hull of the
+    projected model is the hull of its vertices; this is the §4.2.2 label of a silhouette drawn
+    at unlimited resolution, so wings thinner than a pixel still count. None if the model is
+    out of view or reaches behind the camera.
+    """
+    from ..render.boxes import pose_matrices, project_points
+
+    rot, t = pose_matrices(np.asarray(quat, float)[None], np.asarray(trans, float)[None])
+    z, uv = project_points(np.asarray(K, float), rot, t, np.asarray(vertices, float))
+    if not np.all(z > 0):
+        return None
+    hull = cv2.convexHull(uv[0].astype(np.float32))
+    frame = np.array([[-0.5, -0.5], [width - 0.5, -0.5], [width - 0.5, height - 0.5], [-0.5, height - 0.5]],
+                     np.float32)
+    area, clipped = cv2.intersectConvexConvex(hull, frame)
+    if area <= 0 or clipped is None:
+        return None
+    corners = cv2.boxPoints(cv2.minAreaRect(clipped.reshape(-1, 2))) + 0.5
     x0, y0 = np.maximum(corners.min(axis=0), 0.0)
     x1, y1 = np.minimum(corners.max(axis=0), (width, height))
     if x1 <= x0 or y1 <= y0:
         return None
     return np.array([x0, y0, x1, y1], dtype=np.float64)
-
-
-def annotate(coverage: np.ndarray, threshold: float = 0.5, min_pixels: int = 1) -> np.ndarray | None:
-    """Fig. 4.4: binarise the rendered UAV's coverage ``(H,W)`` → oriented box → ROI
-    ``[x0,y0,x1,y1]``; None if fewer than ``min_pixels`` pixels or a degenerate box."""
-    mask = np.asarray(coverage) >= threshold
-    if np.count_nonzero(mask) < min_pixels:
-        return None
-    obb = obb_from_mask(mask)
-    return None if obb is None else roi_from_obb(obb, mask.shape[1], mask.shape[0])
 
 
 def yolo_line(box: np.ndarray, width: int, height: int) -> str:
@@ -215,6 +234,72 @@ def dataset_camera(cfg: DatasetConfig):
     return load_camera_info_yaml(config_file(cfg.camera_info)).rectified()
 
 
+# Landing seeds are drawn at or above this, so a training landing never repeats an evaluation
+# sequence made with a smaller seed (the shipped evaluations use 9001).
+LANDING_SEED_MIN = 10_000
+
+
+class LandingFrames:
+    """Frames of simulated landings for the ``normal``/``complex`` families.
+
+    Each frame: a new landing of the family's shipped scenario (seed drawn from the image's
+    generator, ≥ :data:`LANDING_SEED_MIN`), one of its frames at random, drawn as the
+    simulator draws it (render camera, motion blur, lens distortion, sensor noise) over one of
+    ``banks_per_family`` backgrounds with a random sun, then undistorted as the graph does. Its
+    label is :func:`model_roi` at the true pose in the rectified camera, as ``eval-detector``
+    labels a bag.
+    """
+
+    def __init__(self, cfg: DatasetConfig, rectified, mesh):
+        from ..sim.backgrounds import make_background
+        from ..sim.config import load_scenario
+        from ..sim.simulate import scenario_camera
+        from ..sim.synthesis import FrameSynthesizer
+
+        self.vertices, self.K, self.size = mesh.vertices, rectified.K, (rectified.width, rectified.height)
+        self.families, self.parts = [], {}
+        for fam in ("normal", "complex"):
+            if fam not in cfg.families:
+                continue
+            scenario = load_scenario(fam)
+            camera = scenario_camera(scenario)
+            rect = camera.rectified()
+            if (rect.width, rect.height) != self.size or not np.allclose(rect.K, self.K):
+                raise ValueError(f"landing frames are drawn with the '{fam}' scenario's camera "
+                                 f"({scenario.camera_info}); the dataset's camera_info must be the same")
+            synth = FrameSynthesizer(camera, scenario.imaging, mesh)
+            banks = []
+            for seed in np.random.SeedSequence([cfg.seed, 1 << 31, FAMILIES.index(fam)]).spawn(cfg.banks_per_family):
+                rng = np.random.default_rng(seed)
+                az, el = rng.uniform(-180, 180), rng.uniform(5, 45) if fam == "normal" else rng.uniform(1, 12)
+                bcfg = replace(scenario.background, sun_azimuth_deg=float(az), sun_elevation_deg=float(el))
+                az, el = np.radians([az, el])
+                sun = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+                banks.append((make_background(bcfg, synth.render_camera, scenario.ship, rng), sun))
+            self.families.append(fam)
+            self.parts[fam] = (scenario, synth, banks, camera.undistortion_maps())
+
+    def sample(self, rng: np.random.Generator):
+        """An undistorted landing frame (RGB uint8), its ROI (None if the UAV is not in view) and
+        the true pose ``(quat, trans)`` in the camera frame."""
+        from ..sim.simulate import generators, make_trajectory
+
+        scenario, synth, banks, (map1, map2) = self.parts[self.families[rng.integers(len(self.families))]]
+        background, sun = banks[rng.integers(len(banks))]
+        rngs = generators(int(rng.integers(LANDING_SEED_MIN, 2**62)))
+        traj = make_trajectory(scenario, rngs)
+        k = int(rng.integers(1, len(traj)))
+        centres = synth.render_camera.project_pinhole(traj.trans[k - 1 : k + 1])
+        shift = (centres[1] - centres[0]) * scenario.imaging.exposure_fraction
+        shift *= min(1.0, scenario.imaging.max_blur_px / max(float(np.linalg.norm(shift)), 1e-9))
+        background.jitter_rng = rng
+        bg = background.frame(k, float(traj.times_s[k]), traj.cam_rot[k], traj.cam_pos[k])
+        raw, _ = synth.frame(bg, traj.quat[k], traj.trans[k], traj.cam_rot[k].T @ sun, shift, rng)
+        image = cv2.remap(raw, map1, map2, cv2.INTER_LINEAR)
+        box = model_roi(self.vertices, self.K, traj.quat[k], traj.trans[k], *self.size)
+        return image, box, (traj.quat[k], traj.trans[k])
+
+
 class SampleGenerator:
     """Makes image ``i`` of a dataset: ``(rgb uint8, ROI [x0,y0,x1,y1] or None)``."""
 
@@ -224,11 +309,17 @@ class SampleGenerator:
 
         self.camera = dataset_camera(cfg)
         self.cfg = cfg
-        self.renderer = Renderer(self.camera, mesh if mesh is not None else fixed_wing_mesh("high"))
+        self.mesh = mesh if mesh is not None else fixed_wing_mesh("high")
+        self.renderer = Renderer(self.camera, self.mesh)
         self.backgrounds = BackgroundSource(self.camera, cfg)
+        self.landing = LandingFrames(cfg, self.camera, self.mesh) if cfg.landing_fraction else None
 
     def sample(self, index: int) -> tuple[np.ndarray, np.ndarray | None]:
         cfg, rng = self.cfg, image_rng(self.cfg.seed, index)
+        # Drawn only when landing frames are asked for: datasets made without them keep their images.
+        if self.landing is not None and rng.random() < cfg.landing_fraction:
+            image, box, _ = self.landing.sample(rng)
+            return photometric(image, rng, cfg), box
         image, box = self.backgrounds.draw(rng), None
         if rng.random() >= cfg.negative_fraction:
             albedo = np.clip(rng.uniform(0.15, 0.95) + rng.uniform(-0.05, 0.05, 3), 0, 1)
@@ -236,7 +327,9 @@ class SampleGenerator:
             for _ in range(20):  # redraw poses whose visible part is too small to label
                 quat, trans = random_pose(rng, self.camera, cfg)
                 rgb, alpha = self.renderer.shaded(quat, trans, image, albedo=tuple(albedo), light_dir=light)
-                box = annotate(alpha, cfg.coverage_threshold, cfg.min_visible_px)
+                if np.count_nonzero(alpha >= cfg.coverage_threshold) >= cfg.min_visible_px:
+                    box = model_roi(self.mesh.vertices, self.camera.K, quat, trans, self.camera.width,
+                                    self.camera.height)
                 if box is not None:
                     image = rgb
                     break
@@ -256,16 +349,25 @@ def _write_images(out: Path, indices) -> list[float | None]:
     gen, widths = _WORKER, []
     w, h = gen.camera.width, gen.camera.height
     for i in indices:
+        label = out / "labels" / f"{i:06d}.txt"
+        if label.exists():  # written by an interrupted run (after its image): the same sample
+            boxes = read_labels(label, w, h)
+            widths.append(float(boxes[0, 2] - boxes[0, 0]) if len(boxes) else None)
+            continue
         image, box = gen.sample(i)
         cv2.imwrite(str(out / "images" / f"{i:06d}.jpg"), cv2.cvtColor(image, cv2.COLOR_RGB2BGR),
                     [cv2.IMWRITE_JPEG_QUALITY, gen.cfg.jpeg_quality])
-        (out / "labels" / f"{i:06d}.txt").write_text("" if box is None else yolo_line(box, w, h) + "\n")
+        label.with_suffix(".tmp").write_text("" if box is None else yolo_line(box, w, h) + "\n")
+        label.with_suffix(".tmp").replace(label)
         widths.append(None if box is None else float(box[2] - box[0]))
     return widths
 
 
 def generate(cfg: DatasetConfig, out_dir, progress: bool = True, workers: int = 1) -> dict:
     """Write the dataset to ``out_dir`` (which must not hold one yet); return its summary.
+
+    An interrupted run is continued by running it again: images whose label exists are kept
+    (image ``i`` depends only on ``(seed, i)``).
 
     ``workers`` > 1 spreads the images over that many processes (each with its own GL
     context); image ``i`` is the same whichever process makes it."""

@@ -1,9 +1,9 @@
 """Detector evaluation (§6.3.2): precision–recall curve, AP at IoU 0.5, recall by UAV size, speed.
 
 The ground-truth ROI of each frame comes from the bag's ground-truth pose: the model is
-rendered at that pose in the rectified camera and labelled as in Fig. 4.4 (binarise →
-oriented box → axis-aligned ROI, :func:`.dataset.annotate`). Frames are undistorted first,
-as the node graph does before detection.
+projected at that pose in the rectified camera and labelled as in Fig. 4.4 (outline →
+oriented box → axis-aligned ROI, :func:`.dataset.model_roi`), as the training data are.
+Frames are undistorted first, as the node graph does before detection.
 """
 
 import json
@@ -108,9 +108,8 @@ def evaluate_bag(bag, config, json_path, png_path=None, progress: bool = True) -
     from tqdm import tqdm
 
     from ..model import fixed_wing_mesh
-    from ..render import Renderer
     from ..sim.bag import iter_frames, read_camera, read_poses
-    from .dataset import annotate
+    from .dataset import model_roi
     from .detector import Detector
 
     camera = read_camera(bag)
@@ -118,7 +117,7 @@ def evaluate_bag(bag, config, json_path, png_path=None, progress: bool = True) -
     map1, map2 = camera.undistortion_maps()
     poses = read_poses(bag)
     truth = {int(s): (q, t) for s, q, t in zip(poses.stamps_ns, poses.quat, poses.trans)}
-    renderer = Renderer(rect, fixed_wing_mesh("high"))
+    vertices = fixed_wing_mesh("high").vertices
     detector = Detector(replace(config, score_threshold=0.01, max_detections=20))
     frames = []
     for stamp, raw in tqdm(iter_frames(bag), desc="eval-detector", unit="frame", total=len(truth),
@@ -126,7 +125,7 @@ def evaluate_bag(bag, config, json_path, png_path=None, progress: bool = True) -
         if stamp not in truth:
             raise ValueError(f"{bag}: frame {stamp} has no ground-truth pose")
         image = cv2.remap(raw, map1, map2, cv2.INTER_LINEAR)
-        box = annotate(renderer.silhouette_full(*truth[stamp]).astype(np.float32))
+        box = model_roi(vertices, rect.K, *truth[stamp], rect.width, rect.height)
         t0 = time.perf_counter()
         det = detector.detect(image)
         ms = 1000.0 * (time.perf_counter() - t0)

@@ -10,7 +10,7 @@ bit for bit; the validation split (every 10th image of each folder) gives AP50 a
 
 import json
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
 import cv2
@@ -42,6 +42,7 @@ class TrainConfig:
     threads: int = 2
     loader_workers: int = 0  # processes decoding images alongside the training (0: in the loop)
     max_images: int = 0  # use only the first N images of each folder (0: all)
+    init: str = ""  # a checkpoint (last.pt) whose network weights start this run (fine-tuning)
 
     def __post_init__(self):
         if (self.epochs < 1 or self.batch < 1 or self.lr <= 0 or self.width < 8 or self.threads < 1
@@ -206,6 +207,8 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
     val_loader = torch.utils.data.DataLoader(val_set, cfg.batch, collate_fn=collate, num_workers=cfg.loader_workers)
 
     net = UavDetectorNet(cfg.width)
+    if cfg.init and not resume:
+        net.load_state_dict(initial_weights(cfg.init))
     optim = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     total = cfg.epochs * len(train_loader)
     warm = max(1, total // 20)
@@ -251,13 +254,23 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
     return log
 
 
+def initial_weights(path) -> dict:
+    """The network weights of another run's checkpoint, to fine-tune from."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no checkpoint {path} to start from")
+    return torch.load(path, weights_only=False)["net"]
+
+
 def load_checkpoint(cfg: TrainConfig) -> dict:
     """The run's ``last.pt``; FileNotFoundError without one, ValueError if other settings made it."""
     ckpt = Path(cfg.out) / "last.pt"
     if not ckpt.exists():
         raise FileNotFoundError(f"no checkpoint {ckpt}")
     state = torch.load(ckpt, weights_only=False)
-    if state["config"] != asdict(cfg):
+    # Settings added since the checkpoint was written count as their defaults.
+    saved = {**{f.name: f.default for f in fields(TrainConfig)}, **state["config"]}
+    if saved != asdict(cfg):
         raise ValueError(f"{ckpt} was made with other settings: {state['config']}")
     return state
 
