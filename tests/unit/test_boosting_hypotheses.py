@@ -101,6 +101,12 @@ def test_generator_counts_and_errors(camera):
     assert len(gen.generate(frame, roi)) == 10
     assert len(gen.generate(frame, roi, count=7)) == 7
     assert gen.generate(np.full_like(frame, 200), roi) is None
+    # a ROI tight on the dark box is grown before its corners are taken: the same box either way
+    tight = gen.generate(frame, (500, 300, 200, 40), count=1).obb
+    assert (tight.w, tight.h) == pytest.approx((gen.generate(frame, roi, count=1).obb.w, 40.0), abs=2.0)
+    bare = PoseHypothesisGenerator(db, camera, HypothesisConfig(particles=40, kept=30, roi_margin=0.0, roi_pad_px=0.0))
+    assert bare.generate(frame, (500, 300, 200, 40), count=1) is None or bare.generate(
+        frame, (500, 300, 200, 40), count=1).obb.w < tight.w - 4
     with pytest.raises(ValueError, match="camera is"):
         gen.generate(frame[:100], roi)
     other = CameraModel(camera.width, camera.height, np.diag([900.0, 900.0, 1.0]) + [[0, 0, 640], [0, 0, 360], [0, 0, 0]])
@@ -109,7 +115,8 @@ def test_generator_counts_and_errors(camera):
 
 
 @pytest.mark.parametrize("kwargs", [{"particles": 0, "kept": 0}, {"particles": 10, "kept": 10},
-                                    {"kept": -1}, {"aspect_weight": 0.0}])
+                                    {"kept": -1}, {"aspect_weight": 0.0}, {"roi_margin": -0.1},
+                                    {"roi_pad_px": -1.0}])
 def test_hypothesis_config_validation(kwargs):
     with pytest.raises(ValueError):
         HypothesisConfig(**kwargs)

@@ -7,6 +7,7 @@ import pytest
 from uav_landing_vision.boosting.obb import (
     FastConfig,
     aspect_ratio,
+    grow_roi,
     obb_from_frame,
     obb_from_mask,
     obb_from_points,
@@ -116,6 +117,27 @@ def test_flat_roi_or_too_few_corners_has_no_box():
     frame[30:40, 30:40] = 250  # four corners
     assert obb_from_frame(frame, (10, 10, 50, 50), FastConfig(min_corners=3)) is not None
     assert obb_from_frame(frame, (10, 10, 50, 50), FastConfig(min_corners=50)) is None
+
+
+def test_grow_roi_adds_margin_and_pad_outward_and_clips():
+    assert grow_roi((100, 50, 40, 10), 0.10, 2.0, 640, 480) == (94, 47, 52, 16)  # 4 px / 3 px each side
+    assert grow_roi((100, 50, 40, 10), 0.0, 0.0, 640, 480) == (100, 50, 40, 10)
+    assert grow_roi((1, 2, 636, 470), 0.10, 2.0, 640, 480) == (0, 0, 640, 480)
+    with pytest.raises(ValueError, match="non-negative"):
+        grow_roi((1, 2, 3, 4), -0.1, 0.0, 640, 480)
+    with pytest.raises(ValueError, match="outside"):
+        grow_roi((700, 2, 3, 4), 0.1, 2.0, 640, 480)
+
+
+def test_fast_finds_no_corner_at_a_tight_roi_edge():
+    """Why boosting grows ROIs: in a ROI tight on a bright bar, FAST (radius-3 ring) finds
+    none of the bar's end corners, so the box loses its length; grown, the box is whole."""
+    frame = np.full((100, 200), 90, np.uint8)
+    frame[48:53, 40:160] = 230  # a 120 x 5 px "wing"
+    tight = obb_from_frame(frame, (40, 48, 120, 5), FastConfig(min_corners=3))
+    grown = obb_from_frame(frame, grow_roi((40, 48, 120, 5), 0.10, 2.0, 200, 100))
+    assert tight is None or tight.w < 110
+    assert grown.w == pytest.approx(120.0, abs=3.0)
 
 
 @pytest.mark.parametrize(

@@ -20,7 +20,7 @@ from ..evaluation.statistics import ROW_NAMES, STAT_KEYS, error_statistics
 from ..geometry import euler_error, geodesic_angle
 from .database import ASPECT_WEIGHT, PoseDatabase, sample_orientations
 from .hypotheses import hypotheses_from_obb
-from .obb import FastConfig, obb_from_frame
+from .obb import FastConfig, grow_roi, obb_from_frame
 
 ROI_MARGIN = 0.10
 PLACEMENTS = ("axis", "view")
@@ -69,15 +69,13 @@ def sample_positions(camera: CameraModel, distance: float, radius: float, count:
 
 
 def silhouette_roi(alpha: np.ndarray, margin: float = ROI_MARGIN):
-    """ROI ``(x, y, w, h)`` of the rendered coverage grown by ``margin`` each way, or None if empty."""
+    """ROI ``(x, y, w, h)`` of the rendered coverage grown by ``margin`` + 2 px each way (as the
+    boosting stage grows ROIs), or None if empty."""
     ys, xs = np.nonzero(alpha > 0)
     if len(xs) == 0:
         return None
-    x0, x1, y0, y1 = xs.min(), xs.max() + 1, ys.min(), ys.max() + 1
-    gx, gy = int(np.ceil(margin * (x1 - x0))) + 2, int(np.ceil(margin * (y1 - y0))) + 2
-    x0, y0 = max(x0 - gx, 0), max(y0 - gy, 0)
-    x1, y1 = min(x1 + gx, alpha.shape[1]), min(y1 + gy, alpha.shape[0])
-    return int(x0), int(y0), int(x1 - x0), int(y1 - y0)
+    box = (int(xs.min()), int(ys.min()), int(xs.max() + 1 - xs.min()), int(ys.max() + 1 - ys.min()))
+    return grow_roi(box, margin, 2.0, alpha.shape[1], alpha.shape[0])
 
 
 def closest_errors(q_true, t_true, quats, positions, top) -> tuple[np.ndarray, np.ndarray]:

@@ -13,13 +13,20 @@ import numpy as np
 
 from ..camera import CameraModel
 from .database import ASPECT_WEIGHT, DEFAULT_FILE, PoseDatabase
-from .obb import THETA_PERIOD_DEG, FastConfig, Obb, obb_from_frame
+from .obb import THETA_PERIOD_DEG, FastConfig, Obb, grow_roi, obb_from_frame
 
 
 @dataclass(frozen=True)
 class HypothesisConfig:
     """M hypotheses at the first frame, M − M0 afterwards; the database file (a name in
-    ``models/`` or a path) and its (4.4) weight; FAST settings; centre offset on/off."""
+    ``models/`` or a path) and its (4.4) weight; FAST settings; centre offset on/off; how much
+    the ROI is grown before its FAST corners are taken.
+
+    The growth is ours: FAST needs its radius-3 ring inside the image, so in a ROI that is
+    tight on the UAV the corners of its outermost pixels (wing tips, tail) are never found and
+    the box comes out too small, i.e. the depth (4.5) too far. Every ROI source (detector,
+    ground-truth oracle, the boosting evaluation) goes through the same growth.
+    """
 
     particles: int = 100
     kept: int = 75
@@ -27,8 +34,12 @@ class HypothesisConfig:
     aspect_weight: float = ASPECT_WEIGHT
     fast: FastConfig = field(default_factory=FastConfig)
     centre_offset: bool = True
+    roi_margin: float = 0.10  # of the ROI's width / height, each side
+    roi_pad_px: float = 2.0  # plus this, each side
 
     def __post_init__(self):
+        if not (self.roi_margin >= 0 and self.roi_pad_px >= 0):
+            raise ValueError(f"roi_margin and roi_pad_px must be non-negative, got {self.roi_margin}, {self.roi_pad_px}")
         if self.particles < 1 or not 0 <= self.kept < self.particles:
             raise ValueError(f"need particles M >= 1 and 0 <= kept M0 < M, got M={self.particles}, M0={self.kept}")
         if not self.aspect_weight > 0:
@@ -107,11 +118,12 @@ class PoseHypothesisGenerator:
         return cls(database, camera, config)
 
     def generate(self, frame: np.ndarray, roi, first_frame: bool = False, count: int | None = None) -> Hypotheses | None:
-        """Hypotheses for the rectified ``frame`` and ROI ``(x, y, w, h)``: ``count`` of them
+        """Hypotheses for the rectified ``frame`` and ROI ``(x, y, w, h)`` (grown as configured): ``count`` of them
         (default M at the first frame, M − M0 otherwise); None if no box is found in the ROI."""
         frame = np.asarray(frame)
         if frame.shape[:2] != (self.camera.height, self.camera.width):
             raise ValueError(f"frame is {frame.shape[1]}x{frame.shape[0]}, camera is {self.camera.width}x{self.camera.height}")
+        roi = grow_roi(roi, self.config.roi_margin, self.config.roi_pad_px, self.camera.width, self.camera.height)
         obb = obb_from_frame(frame, roi, self.config.fast)
         if obb is None:
             return None

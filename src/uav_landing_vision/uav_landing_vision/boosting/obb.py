@@ -103,6 +103,18 @@ def check_roi(roi, width: int, height: int) -> tuple[int, int, int, int]:
     return x0, y0, x1 - x0, y1 - y0
 
 
+def grow_roi(roi, margin: float, pad_px: float, width: int, height: int) -> tuple[int, int, int, int]:
+    """ROI ``(x, y, w, h)`` grown by ``margin`` of its size + ``pad_px`` on every side (outward
+    to whole pixels) and clipped to the image; validated as :func:`check_roi`."""
+    if margin < 0 or pad_px < 0:
+        raise ValueError(f"ROI growth must be non-negative, got margin {margin}, pad {pad_px} px")
+    x, y, w, h = check_roi(roi, width, height)
+    gx, gy = margin * w + pad_px, margin * h + pad_px
+    x0, y0 = max(int(np.floor(x - gx)), 0), max(int(np.floor(y - gy)), 0)
+    x1, y1 = min(int(np.ceil(x + w + gx)), width), min(int(np.ceil(y + h + gy)), height)
+    return x0, y0, x1 - x0, y1 - y0
+
+
 def to_gray(image: np.ndarray) -> np.ndarray:
     """8-bit grayscale of a uint8 grayscale ``(H, W)`` or RGB/RGBA ``(H, W, 3|4)`` frame."""
     image = np.asarray(image)

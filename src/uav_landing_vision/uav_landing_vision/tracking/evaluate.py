@@ -7,8 +7,8 @@ hypotheses (each takes the first M or M − M0 of them, best first, as it needs)
 
 - ``detector`` (default): the project's ONNX detector (§4.2) on the full frame, best box. If
   the detector module or its model is missing this fails; it never falls back to the oracle.
-- ``oracle``: the box of the model projected at the ground-truth pose, grown by 10 % + 2 px.
-  Not a measurement: results with it say so in the table header and the JSON ``sequence``.
+- ``oracle``: the box of the model projected at the ground-truth pose (boosting grows every
+  ROI alike, ``pose_boosting.yaml`` ``roi_margin``/``roi_pad_px``). Not a measurement: results with it say so in the table header and the JSON ``sequence``.
 
 A frame counts as lost (NaN error) when the tracker has no estimate or reports LOST.
 ``ms_per_frame`` is boosting plus the whole tracker step (not undistortion, ROI or detector).
@@ -24,7 +24,6 @@ import numpy as np
 from .upf import STAGES, Tracker, TrackerConfig, TrackState, parse_variant
 
 ROI_SOURCES = ("detector", "oracle")
-ROI_MARGIN = 0.10
 SHARED_STAGES = ("undistort", "roi", "boosting")
 
 
@@ -40,9 +39,9 @@ def parse_variants(text: str) -> list[str]:
     return list(dict.fromkeys(names))
 
 
-def oracle_roi(camera, vertices: np.ndarray, quat, trans, margin: float = ROI_MARGIN):
-    """ROI ``(x, y, w, h)`` of the model's vertices projected at the true pose (rectified
-    camera), grown by ``margin`` of its size + 2 px per side and clipped; None if not in view."""
+def oracle_roi(camera, vertices: np.ndarray, quat, trans):
+    """ROI ``(x, y, w, h)`` of the model's vertices projected at the pose (rectified camera),
+    out to whole pixels and clipped; None if not in view."""
     from ..render.boxes import pose_matrices, project_points
 
     rot, t = pose_matrices(np.asarray(quat, float)[None], np.asarray(trans, float)[None])
@@ -50,9 +49,8 @@ def oracle_roi(camera, vertices: np.ndarray, quat, trans, margin: float = ROI_MA
     if not np.all(z > 0):
         return None
     lo, hi = uv[0].min(axis=0), uv[0].max(axis=0)
-    grow = margin * (hi - lo) + 2.0
-    x0, y0 = np.floor(np.maximum(lo - grow, 0)).astype(int)
-    x1, y1 = np.ceil(np.minimum(hi + grow, [camera.width, camera.height])).astype(int)
+    x0, y0 = np.floor(np.maximum(lo, 0)).astype(int)
+    x1, y1 = np.ceil(np.minimum(hi, [camera.width, camera.height])).astype(int)
     return None if x1 <= x0 or y1 <= y0 else (int(x0), int(y0), int(x1 - x0), int(y1 - y0))
 
 
