@@ -105,8 +105,7 @@ def test_generator_counts_and_errors(camera):
     tight = gen.generate(frame, (500, 300, 200, 40), count=1).obb
     assert (tight.w, tight.h) == pytest.approx((gen.generate(frame, roi, count=1).obb.w, 40.0), abs=2.0)
     bare = PoseHypothesisGenerator(db, camera, HypothesisConfig(particles=40, kept=30, roi_margin=0.0, roi_pad_px=0.0))
-    assert bare.generate(frame, (500, 300, 200, 40), count=1) is None or bare.generate(
-        frame, (500, 300, 200, 40), count=1).obb.w < tight.w - 4
+    assert bare.generate(frame, (500, 300, 200, 40), count=1) is None  # ungrown: no corner in reach
     with pytest.raises(ValueError, match="camera is"):
         gen.generate(frame[:100], roi)
     other = CameraModel(camera.width, camera.height, np.diag([900.0, 900.0, 1.0]) + [[0, 0, 640], [0, 0, 360], [0, 0, 0]])

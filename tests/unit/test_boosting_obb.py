@@ -130,13 +130,13 @@ def test_grow_roi_adds_margin_and_pad_outward_and_clips():
 
 
 def test_fast_finds_no_corner_at_a_tight_roi_edge():
-    """Why boosting grows ROIs: in a ROI tight on a bright bar, FAST (radius-3 ring) finds
-    none of the bar's end corners, so the box loses its length; grown, the box is whole."""
+    """Why boosting grows ROIs: in a ROI tight on a thin bright bar, FAST (radius-3 ring) finds
+    no corner at all; grown, the box is whole."""
     frame = np.full((100, 200), 90, np.uint8)
     frame[48:53, 40:160] = 230  # a 120 x 5 px "wing"
     tight = obb_from_frame(frame, (40, 48, 120, 5), FastConfig(min_corners=3))
     grown = obb_from_frame(frame, grow_roi((40, 48, 120, 5), 0.10, 2.0, 200, 100))
-    assert tight is None or tight.w < 110
+    assert tight is None
     assert grown.w == pytest.approx(120.0, abs=3.0)
 
 
