@@ -118,8 +118,9 @@ class PoseHypothesisGenerator:
         return cls(database, camera, config)
 
     def generate(self, frame: np.ndarray, roi, first_frame: bool = False, count: int | None = None) -> Hypotheses | None:
-        """Hypotheses for the rectified ``frame`` and ROI ``(x, y, w, h)`` (grown as configured): ``count`` of them
-        (default M at the first frame, M − M0 otherwise); None if no box is found in the ROI."""
+        """Hypotheses for the rectified ``frame`` and ROI ``(x, y, w, h)`` (grown as configured):
+        ``count`` of them (default M at the first frame, M − M0 otherwise); None if no box is
+        found in the ROI."""
         frame = np.asarray(frame)
         if frame.shape[:2] != (self.camera.height, self.camera.width):
             raise ValueError(f"frame is {frame.shape[1]}x{frame.shape[0]}, camera is {self.camera.width}x{self.camera.height}")

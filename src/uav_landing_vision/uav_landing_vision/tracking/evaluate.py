@@ -8,7 +8,8 @@ hypotheses (each takes the first M or M − M0 of them, best first, as it needs)
 - ``detector`` (default): the project's ONNX detector (§4.2) on the full frame, best box. If
   the detector module or its model is missing this fails; it never falls back to the oracle.
 - ``oracle``: the box of the model projected at the ground-truth pose (boosting grows every
-  ROI alike, ``pose_boosting.yaml`` ``roi_margin``/``roi_pad_px``). Not a measurement: results with it say so in the table header and the JSON ``sequence``.
+  ROI alike, ``pose_boosting.yaml`` ``roi_margin``/``roi_pad_px``). Not a measurement:
+  results with it say so in the table header and the JSON ``sequence``.
 
 A frame counts as lost (NaN error) when the tracker has no estimate or reports LOST.
 ``ms_per_frame`` is boosting plus the whole tracker step (not undistortion, ROI or detector).
