@@ -19,10 +19,9 @@ from ..camera import CameraModel
 from ..evaluation.statistics import ROW_NAMES, STAT_KEYS, error_statistics
 from ..geometry import euler_error, geodesic_angle
 from .database import ASPECT_WEIGHT, PoseDatabase, sample_orientations
-from .hypotheses import hypotheses_from_obb
+from .hypotheses import HypothesisConfig, hypotheses_from_obb
 from .obb import FastConfig, grow_roi, obb_from_frame
 
-ROI_MARGIN = 0.10
 PLACEMENTS = ("axis", "view")
 BACKGROUND_FRAMES = 8
 
@@ -68,14 +67,14 @@ def sample_positions(camera: CameraModel, distance: float, radius: float, count:
     return distance * rays / np.linalg.norm(rays, axis=1, keepdims=True)
 
 
-def silhouette_roi(alpha: np.ndarray, margin: float = ROI_MARGIN):
-    """ROI ``(x, y, w, h)`` of the rendered coverage grown by ``margin`` + 2 px each way (as the
-    boosting stage grows ROIs), or None if empty."""
+def silhouette_roi(alpha: np.ndarray):
+    """ROI ``(x, y, w, h)`` of the rendered coverage grown as the boosting stage grows ROIs
+    (:class:`HypothesisConfig`'s default ``roi_margin``, ``roi_pad_px``), or None if empty."""
     ys, xs = np.nonzero(alpha > 0)
     if len(xs) == 0:
         return None
     box = (int(xs.min()), int(ys.min()), int(xs.max() + 1 - xs.min()), int(ys.max() + 1 - ys.min()))
-    return grow_roi(box, margin, 2.0, alpha.shape[1], alpha.shape[0])
+    return grow_roi(box, HypothesisConfig.roi_margin, HypothesisConfig.roi_pad_px, alpha.shape[1], alpha.shape[0])
 
 
 def closest_errors(q_true, t_true, quats, positions, top) -> tuple[np.ndarray, np.ndarray]:
