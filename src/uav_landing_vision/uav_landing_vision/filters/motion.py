@@ -94,10 +94,10 @@ class _UKFRotation(RotationUKF):
 class _UBiFRotation(UBiF):
     def __init__(self, cfg: MotionFilterConfig):
         super().__init__(cfg.dt, cfg.process_z, cfg.measurement_z, np.full(3, cfg.omega_process_std**2))
-        self.z0 = cfg.initial_z
+        self.z0, self.omega_cov0 = cfg.initial_z, np.full(3, cfg.initial_omega_std**2)
 
     def init(self, quat, omega):
-        return super().init(quat, omega, self.z0)
+        return super().init(quat, omega, self.z0, self.omega_cov0)
 
 
 class _UBiGaFRotation(UBiGaF):
