@@ -8,7 +8,7 @@ walk of ``omega_process_cov`` per step; measurement noise from the two estimates
 covariances (C.6)), and the ω uncertainty is composed into the prediction. Taking (5.4)–(5.6)
 as exact made the filter over-confident (mean NEES 5.0 where 2.3–3.8 is consistent,
 ``simulation.compare``) and, in the tracker, let a drifting estimate feed its own drift back
-as angular velocity until it turned 180° (complex landing, seed 0, frames 302–321 without a
+as angular velocity until it was off by 165° (complex landing, seed 0, frames 302–321 without a
 detection).
 """
 
