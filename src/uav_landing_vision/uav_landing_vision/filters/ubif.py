@@ -60,9 +60,9 @@ def fuse_angular_velocity(omega, omega_cov, measured, measured_cov):
     return fused, 0.5 * (cov + np.swapaxes(cov, -1, -2))
 
 
-def rotation_covariance(m: np.ndarray, z: np.ndarray) -> np.ndarray:
-    """Rotation-error covariance ``(M, 3, 3)`` about the mode of ``P_B(m, z)``, rad², from (C.6)."""
-    return bingham.tangent_covariance(bingham.mode(m), bingham.covariance(m, z))
+def rotation_covariance(m: np.ndarray, z: np.ndarray, mode: np.ndarray) -> np.ndarray:
+    """Rotation-error covariance ``(M, 3, 3)`` of ``P_B(m, z)`` about its ``mode``, rad², from (C.6)."""
+    return bingham.tangent_covariance(mode, bingham.covariance(m, z))
 
 
 class UBiF:
@@ -85,7 +85,7 @@ class UBiF:
         m = bingham.frame(quat)
         z = np.broadcast_to(bingham.check_concentration(z0, "z0"), shape + (3,)).copy()
         omega_cov = np.broadcast_to(spd_matrix(omega_cov, 3, "omega_cov"), shape + (3, 3)).copy()
-        return UBiFState(m, z, np.asarray(omega, float).copy(), omega_cov, quat, rotation_covariance(m, z))
+        return UBiFState(m, z, np.asarray(omega, float).copy(), omega_cov, quat, rotation_covariance(m, z, quat))
 
     def predict(self, s: UBiFState) -> UBiFState:
         """Algorithm 4: sigma points (App. D) through (3.12), composed with ``Φ`` (C.7), refit (C.9).
@@ -100,7 +100,8 @@ class UBiF:
         cov = bingham.compose_covariance(bingham.scatter(pts, w), bingham.small_rotation_moment(self.dt**2 * omega_cov))
         cov = bingham.compose_covariance(cov, self.process_cov)
         m, z = bingham.fit(cov)
-        return UBiFState(m, z, s.omega, omega_cov, bingham.mode(s.m), rotation_covariance(s.m, s.z))
+        prev = bingham.mode(s.m)
+        return UBiFState(m, z, s.omega, omega_cov, prev, rotation_covariance(s.m, s.z, prev))
 
     def update(self, s: UBiFState, meas: np.ndarray) -> UBiFState:
         """Algorithm 5: product (C.3) with the noise rotated onto the measurement (5.3); then ω
@@ -108,8 +109,9 @@ class UBiF:
         m_meas = bingham.noise_frame_at(np.asarray(meas, float), np.eye(4))
         m, z = bingham.product(m_meas, self.measurement_z, s.m, s.z)
         z = bingham.clamp_concentration(z)
-        measured = angular_velocity(s.prev, bingham.mode(m), self.dt)
-        noise = (rotation_covariance(m, z) + s.prev_cov) / self.dt**2
+        mode = bingham.mode(m)
+        measured = angular_velocity(s.prev, mode, self.dt)
+        noise = (rotation_covariance(m, z, mode) + s.prev_cov) / self.dt**2
         omega, omega_cov = fuse_angular_velocity(s.omega, s.omega_cov, measured, noise)
         return UBiFState(m, z, omega, omega_cov, s.prev, s.prev_cov)
 
@@ -121,4 +123,4 @@ class UBiF:
     @staticmethod
     def covariance(s: UBiFState) -> np.ndarray:
         """Rotation-error covariance ``(M, 3, 3)`` about the mode, rad², from (C.6)."""
-        return rotation_covariance(s.m, s.z)
+        return rotation_covariance(s.m, s.z, bingham.mode(s.m))
