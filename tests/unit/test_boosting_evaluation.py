@@ -51,7 +51,7 @@ def test_background_and_roi(camera):
     assert np.linalg.norm(sun) == pytest.approx(1.0)
     alpha = np.zeros((100, 200), np.float32)
     alpha[40:60, 50:150] = 1.0
-    assert silhouette_roi(alpha) == (38, 36, 124, 28)
+    assert silhouette_roi(alpha) == (50, 40, 100, 20)
     assert silhouette_roi(np.zeros((10, 10))) is None
 
 

@@ -135,7 +135,7 @@ def test_fast_finds_no_corner_at_a_tight_roi_edge():
     frame = np.full((100, 200), 90, np.uint8)
     frame[48:53, 40:160] = 230  # a 120 x 5 px "wing"
     tight = obb_from_frame(frame, (40, 48, 120, 5), FastConfig(min_corners=3))
-    grown = obb_from_frame(frame, grow_roi((40, 48, 120, 5), 0.10, 2.0, 200, 100))
+    grown = obb_from_frame(frame, (40, 48, 120, 5), margin=0.10, pad_px=2.0)
     assert tight is None
     assert grown.w == pytest.approx(120.0, abs=3.0)
 
@@ -155,7 +155,43 @@ def test_bad_frame_or_roi_is_a_clear_error(frame, roi, message):
         obb_from_frame(frame, roi)
 
 
-@pytest.mark.parametrize("kwargs", [{"threshold": 0}, {"threshold": 256}, {"min_corners": 2}])
+def _near_uav(wing_contrast: int) -> np.ndarray:
+    """A near UAV seen head-on: a dark, high-contrast fuselage and long wings of low contrast."""
+    frame = np.full((200, 400), 120, np.uint8)
+    frame[96:104, 60:340] = 120 + wing_contrast  # wings, 280 x 8 px
+    cv2.circle(frame, (200, 104), 12, 30, -1)  # fuselage
+    return frame
+
+
+LADDER = FastConfig(thresholds=(20, 16, 12, 10, 8), min_cover=0.9)
+
+
+def test_threshold_ladder_finds_low_contrast_wings():
+    """At the thesis's single threshold the box holds the fuselage only; the ladder goes down
+    until the corners span the ROI, and the box takes in the wings."""
+    frame, roi = _near_uav(wing_contrast=14), (60, 90, 280, 28)
+    thesis = obb_from_frame(frame, roi, FastConfig(thresholds=(20,)), 0.10, 2.0)
+    ladder = obb_from_frame(frame, roi, LADDER, 0.10, 2.0)
+    assert thesis.w < 40.0
+    assert ladder.w == pytest.approx(280.0, abs=4.0)
+    assert obb_from_frame(frame, roi, FastConfig(thresholds=LADDER.thresholds, min_cover=0.0), 0.10, 2.0) == thesis
+    assert obb_from_frame(frame, roi, FastConfig(), 0.10, 2.0) == thesis  # the default is the thesis's
+
+
+def test_threshold_ladder_stops_at_the_first_threshold_that_spans_the_roi():
+    frame, roi = _near_uav(wing_contrast=60), (60, 90, 280, 28)
+    assert obb_from_frame(frame, roi, LADDER, 0.10, 2.0) == obb_from_frame(frame, roi, FastConfig(), 0.10, 2.0)
+
+
+def test_threshold_ladder_falls_back_to_the_widest_box():
+    """No threshold spans enough (the ROI is far larger than the UAV): the widest box is used."""
+    frame, roi = _near_uav(wing_contrast=14), (0, 0, 400, 200)
+    box = obb_from_frame(frame, roi, FastConfig(thresholds=LADDER.thresholds, min_cover=1.0))
+    assert box.w == pytest.approx(280.0, abs=4.0)
+
+
+@pytest.mark.parametrize("kwargs", [{"thresholds": (0,)}, {"thresholds": (256,)}, {"thresholds": ()},
+                                    {"thresholds": (8, 20)}, {"min_cover": 1.5}, {"min_corners": 2}])
 def test_fast_config_validation(kwargs):
     with pytest.raises(ValueError):
         FastConfig(**kwargs)

@@ -4,8 +4,8 @@ Each sample is a random orientation from the database's interval, placed at ``di
 on the optical axis (``axis``, X = Y = 0 as the database) or on a random ray that keeps the
 model inside the image (``view``), rendered shaded (sun light) over the simulator's ``normal``
 background seen from the still deck camera (one of a few pre-drawn frames, the sea moving
-between them; no noise or blur). The ROI is the rendered silhouette's bounding box grown by
-10 %. Among the top-k hypotheses the one with the smallest geodesic error (6.3) is taken; its
+between them; no noise or blur). The ROI is the rendered silhouette's bounding box, grown as the
+boosting stage grows ROIs. Among the top-k hypotheses the one with the smallest geodesic error (6.3) is taken; its
 errors are ground truth minus hypothesis per coordinate and the Z-Y-X Euler angles of
 q_g ⊗ q̄_r (6.4).
 """
@@ -20,7 +20,7 @@ from ..evaluation.statistics import ROW_NAMES, STAT_KEYS, error_statistics
 from ..geometry import euler_error, geodesic_angle
 from .database import ASPECT_WEIGHT, PoseDatabase, sample_orientations
 from .hypotheses import HypothesisConfig, hypotheses_from_obb
-from .obb import FastConfig, grow_roi, obb_from_frame
+from .obb import FastConfig, obb_from_frame
 
 PLACEMENTS = ("axis", "view")
 BACKGROUND_FRAMES = 8
@@ -68,13 +68,11 @@ def sample_positions(camera: CameraModel, distance: float, radius: float, count:
 
 
 def silhouette_roi(alpha: np.ndarray):
-    """ROI ``(x, y, w, h)`` of the rendered coverage grown as the boosting stage grows ROIs
-    (:class:`HypothesisConfig`'s default ``roi_margin``, ``roi_pad_px``), or None if empty."""
+    """ROI ``(x, y, w, h)``: the bounding box of the rendered coverage, or None if empty."""
     ys, xs = np.nonzero(alpha > 0)
     if len(xs) == 0:
         return None
-    box = (int(xs.min()), int(ys.min()), int(xs.max() + 1 - xs.min()), int(ys.max() + 1 - ys.min()))
-    return grow_roi(box, HypothesisConfig.roi_margin, HypothesisConfig.roi_pad_px, alpha.shape[1], alpha.shape[0])
+    return int(xs.min()), int(ys.min()), int(xs.max() + 1 - xs.min()), int(ys.max() + 1 - ys.min())
 
 
 def closest_errors(q_true, t_true, quats, positions, top) -> tuple[np.ndarray, np.ndarray]:
@@ -121,7 +119,8 @@ def evaluate_boosting(camera: CameraModel, mesh, config: BoostingEvalConfig = Bo
             rgb, alpha = renderer.shaded(quats[i], trans[i], backgrounds[i % len(backgrounds)],
                                          albedo=albedo, light_dir=sun)
             roi = silhouette_roi(alpha)
-            obb = None if roi is None else obb_from_frame(rgb, roi, config.fast)
+            obb = None if roi is None else obb_from_frame(rgb, roi, config.fast, HypothesisConfig.roi_margin,
+                                                          HypothesisConfig.roi_pad_px)
             if obb is None:
                 continue
             hyp = hypotheses_from_obb(db, obb, kmax, camera, config.centre_offset)

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..camera import CameraModel
 from .database import ASPECT_WEIGHT, DEFAULT_FILE, PoseDatabase
-from .obb import THETA_PERIOD_DEG, FastConfig, Obb, grow_roi, obb_from_frame
+from .obb import THETA_PERIOD_DEG, FastConfig, Obb, obb_from_frame
 
 
 @dataclass(frozen=True)
@@ -124,8 +124,7 @@ class PoseHypothesisGenerator:
         frame = np.asarray(frame)
         if frame.shape[:2] != (self.camera.height, self.camera.width):
             raise ValueError(f"frame is {frame.shape[1]}x{frame.shape[0]}, camera is {self.camera.width}x{self.camera.height}")
-        roi = grow_roi(roi, self.config.roi_margin, self.config.roi_pad_px, self.camera.width, self.camera.height)
-        obb = obb_from_frame(frame, roi, self.config.fast)
+        obb = obb_from_frame(frame, roi, self.config.fast, self.config.roi_margin, self.config.roi_pad_px)
         if obb is None:
             return None
         k = self.config.count(first_frame) if count is None else count
