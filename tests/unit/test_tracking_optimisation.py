@@ -170,6 +170,22 @@ def test_pfo_adds_the_scheduled_noise():
     np.testing.assert_allclose(np.std(rates, axis=0), [1.0, 2.0, 3.0], rtol=0.06)
 
 
+def test_pfo_translation_noise_scales_with_depth():
+    """With a reference depth the translation σ is the schedule's times depth / reference, per
+    particle: a UAV twice as far moves twice as far; rotation noise is unchanged."""
+    m = 4000
+    p = start(m=m)
+    depth = np.where(np.arange(m) < m // 2, 10.0, 80.0)
+    p = p.with_pose(np.column_stack([p.pos[:, :2], depth]), p.quat)
+    cfg = PFOConfig(schedule="noise", resampling="minimum_sampling", reference_depth_m=40.0)
+    moved = PFO(cfg).run(p, lambda s: np.ones(len(s)), np.random.default_rng(3), 1)
+    near, far = moved.pos[: m // 2] - p.pos[: m // 2], moved.pos[m // 2 :] - p.pos[m // 2 :]
+    np.testing.assert_allclose(np.std(near, axis=0), np.array([0.1, 0.1, 0.2]) * 0.25, rtol=0.08)
+    np.testing.assert_allclose(np.std(far, axis=0), np.array([0.1, 0.1, 0.2]) * 2.0, rtol=0.08)
+    rates = opt.rotvec_between(p.quat, moved.quat) / cfg.dt
+    np.testing.assert_allclose(np.std(rates, axis=0), [2.62] * 3, rtol=0.06)
+
+
 def test_constriction_coefficient_is_5_22():
     assert ConstrictedPSOConfig().gamma == pytest.approx(0.729843788, rel=1e-9)  # Clerc & Kennedy
     assert ConstrictedPSOConfig(k=0.5).gamma == pytest.approx(0.5 * 0.729843788, rel=1e-9)
@@ -221,6 +237,7 @@ def test_gabf_keeps_the_b_best_input_particles():
         lambda: PFOConfig(schedule="linear"),
         lambda: PFOConfig(resampling="bogus"),
         lambda: PFOConfig(noise_trans_sigma_m=(0.1, -0.1, 0.2)),
+        lambda: PFOConfig(reference_depth_m=-1.0),
         lambda: PSOConfig(inertia=1.5),
         lambda: PSOConfig(neighbours=0),
         lambda: ConstrictedPSOConfig(c1=1.0, c2=2.0),
