@@ -5,9 +5,9 @@ on the optical axis (``axis``, X = Y = 0 as the database) or on a random ray tha
 model inside the image (``view``), rendered shaded (sun light) over the simulator's ``normal``
 background seen from the still deck camera (one of a few pre-drawn frames, the sea moving
 between them; no noise or blur). The ROI is the rendered silhouette's bounding box, grown as the
-boosting stage grows ROIs. Among the top-k hypotheses the one with the smallest geodesic error (6.3) is taken; its
-errors are ground truth minus hypothesis per coordinate and the Z-Y-X Euler angles of
-q_g ⊗ q̄_r (6.4).
+boosting stage grows ROIs. Among the top-k hypotheses the one with the smallest geodesic error
+(6.3) is taken; its errors are ground truth minus hypothesis per coordinate and the Z-Y-X Euler
+angles of q_g ⊗ q̄_r (6.4).
 """
 
 import sys

@@ -15,8 +15,8 @@ Per frame (:meth:`Tracker.step`), with M particles of which M0 = M − boosted a
    likelihood times a depth prior about the boosted depth (:func:`depth_prior`) when that depth
    is within ``depth_prior_max_m``; the track state and ``best_likelihood`` use the likelihood alone.
 4. **Pose optimisation** (§5.5): N iterations of the configured optimiser (PFO by default, with
-   the §6.7.1 noise, its translation part scaled by depth / 40 m: ours). Filters are then
-   recentred on the optimised poses.
+   the §6.7.1 noise, its translation part scaled by depth / ``pfo.reference_depth_m``: ours).
+   Filters are then recentred on the optimised poses.
 5. **Output**: the best particle (§6.7.1.2), a 6×6 covariance from the weighted particle cloud
    (:func:`particle_covariance`), the track state (:mod:`.track_state`) and per-stage times.
 
