@@ -9,9 +9,10 @@ from uav_landing_vision.filters import KINDS, MotionFilterConfig, TranslationFil
 M = 100
 
 
+@pytest.mark.parametrize("outlier_prob", [0.0, 0.12])
 @pytest.mark.parametrize("kind", KINDS)
-def test_rotation_filter_step(benchmark, kind):
-    filt = make_rotation_filter(MotionFilterConfig(rotation_filter=kind))
+def test_rotation_filter_step(benchmark, kind, outlier_prob):
+    filt = make_rotation_filter(MotionFilterConfig(rotation_filter=kind, outlier_prob=outlier_prob))
     quat = Rotation.random(M, random_state=0).as_quat()
     state = filt.init(quat, np.zeros((M, 3)))
     out = benchmark(lambda: filt.update(filt.predict(state), quat))

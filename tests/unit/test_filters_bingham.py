@@ -95,6 +95,17 @@ def test_product_and_mode_match_pyrecest():
         assert abs(bingham.mode(m) @ np.asarray(ref.mode())[np.argsort(PY)]) == pytest.approx(1.0, abs=1e-9)
 
 
+def test_product_evidence_matches_integration_of_pyrecest_densities():
+    """``∫ p1 p2`` over S³ by uniform Monte Carlo of pyrecest's densities (moderate concentrations)."""
+    rng = np.random.default_rng(5)
+    x = rng.standard_normal((1_000_000, 4))
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    for _ in range(3):
+        (m1, z1), (m2, z2) = random_bingham(rng, 0.5, 12.0), random_bingham(rng, 0.5, 12.0)
+        expected = 2 * np.pi**2 * np.mean(to_pyrecest(m1, z1).pdf(x[:, PY]) * to_pyrecest(m2, z2).pdf(x[:, PY]))
+        assert np.exp(bingham.product_log_evidence(m1, z1, m2, z2)) == pytest.approx(expected, rel=0.01)
+
+
 def test_composition_matches_pyrecest_and_monte_carlo():
     rng = np.random.default_rng(3)
     for _ in range(5):
@@ -128,6 +139,8 @@ def test_fit_inverts_the_covariance_and_matches_pyrecest():
     m1, z1 = random_bingham(rng, 1, 200)
     ref = BinghamDistribution.fit_to_moment(bingham.covariance(m1, z1)[PY][:, PY])
     np.testing.assert_allclose(np.sort(bingham.fit(bingham.covariance(m1, z1))[1]), np.asarray(ref.Z)[:3], rtol=1e-4)
+    m0, z0 = bingham.fit(np.zeros((0, 4, 4)))  # an empty batch is no error
+    assert m0.shape == (0, 4, 4) and z0.shape == (0, 3)
 
 
 def test_rotation_moves_the_density_with_the_samples():

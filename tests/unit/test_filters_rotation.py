@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 
 from uav_landing_vision.filters import bingham, concat_filters, take_filters
 from uav_landing_vision.filters.motion import KINDS, MotionFilterConfig, TranslationFilter, make_rotation_filter
-from uav_landing_vision.filters.simulation import Scenario, compare
+from uav_landing_vision.filters.simulation import SIM_CONFIG, Scenario, compare
 from uav_landing_vision.filters.ubif import angular_velocity, fuse_angular_velocity
 from uav_landing_vision.filters.ubigaf import UBiGaF, bingham_gauss_moments
 
@@ -104,7 +104,7 @@ def test_translation_filter_tracks_constant_velocity():
 @pytest.mark.parametrize(
     "change",
     [{"rotation_filter": "kalman"}, {"dt": 0.0}, {"process_z": (-250.0, 1.0, -250.0)}, {"measurement_z": (-1e6,) * 3},
-     {"omega_process_std": -1.0}, {"ukf_alpha": 2.0}],
+     {"omega_process_std": -1.0}, {"ukf_alpha": 2.0}, {"outlier_prob": 1.0}, {"outlier_prob": -0.1}],
 )
 def test_invalid_configuration_is_an_error(change):
     with pytest.raises(ValueError):
@@ -120,10 +120,12 @@ def test_invalid_scenario_is_an_error(change):
 def test_filters_under_heavy_tailed_noise_and_their_consistency():
     """Simulated large rotations with outliers and 180° flips (``simulation.compare``).
 
-    All three filters are NEES-consistent when the truth follows their model. With 180° flips
-    only the UBiGaF beats the UKF: the UBiF's Bingham product takes the more concentrated of two
-    orthogonal modes, and its honest prediction is about as spread as the measurement, so it
-    follows a flip whole (README, motion filters). Without flips both Bingham filters win.
+    Thesis update: all three filters are NEES-consistent when the truth follows their model.
+    With 180° flips only the UBiGaF beats the UKF: the UBiF's Bingham product takes the more
+    concentrated of two orthogonal modes, and its honest prediction is about as spread as the
+    measurement, so it follows a flip whole (README, motion filters). Without flips both
+    Bingham filters win. Outlier-aware update (ours): the outliers cost little and all three
+    stay NEES-consistent under the heavy tails as well.
     """
     sc = Scenario(runs=24, steps=120)
     res = compare(seed=0, sc=sc)
@@ -134,6 +136,26 @@ def test_filters_under_heavy_tailed_noise_and_their_consistency():
     no_flips = compare(seed=0, sc=dataclasses.replace(sc, flip_prob=0.0))
     for kind in ("ubif", "ubigaf"):
         assert no_flips[kind]["heavy"]["rmse_deg"] < no_flips["ukf"]["heavy"]["rmse_deg"]
+    aware = compare(seed=0, cfg=dataclasses.replace(SIM_CONFIG, outlier_prob=0.12), sc=sc)
+    for kind in KINDS:
+        assert low < aware[kind]["heavy"]["mean_nees"] < high
+        assert aware[kind]["heavy"]["rmse_deg"] < 1.25 * aware[kind]["nominal"]["rmse_deg"]
+        assert aware[kind]["heavy"]["rmse_deg"] < 0.3 * res[kind]["heavy"]["rmse_deg"]
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_outlier_aware_update_keeps_the_prediction_on_a_flip_and_takes_an_inlier(kind):
+    cfg = MotionFilterConfig(rotation_filter=kind, outlier_prob=0.1)
+    q0 = Rotation.random(4, random_state=6)
+    aware, plain = make_rotation_filter(cfg), make_rotation_filter(dataclasses.replace(cfg, outlier_prob=0.0))
+    state = aware.predict(aware.init(q0.as_quat(), np.zeros((4, 3))))
+    flipped = (q0 * Rotation.from_rotvec([[np.pi, 0, 0], [0, np.pi, 0], [0, 0, np.pi], [np.pi, 0, 0]])).as_quat()
+    kept = aware.update(state, flipped)
+    assert np.all(np.degrees((Rotation.from_quat(aware.estimate(kept)[0]) * q0.inv()).magnitude()) < 0.1)
+    np.testing.assert_allclose(aware.covariance(kept), aware.covariance(state), rtol=1e-3, atol=1e-9)
+    close = (q0 * Rotation.from_rotvec(np.full((4, 3), 0.02))).as_quat()
+    a, b = aware.estimate(aware.update(state, close))[0], plain.estimate(plain.update(state, close))[0]
+    assert np.all(np.degrees((Rotation.from_quat(a) * Rotation.from_quat(b).inv()).magnitude()) < 0.01)
 
 
 def test_fused_angular_velocity_equals_filterpy_kalman_update():

@@ -21,7 +21,7 @@ def _run(args) -> int:
     print(likelihood_benchmark.format_result(likelihood_benchmark.run(repeats=args.repeats)))
     print("\nMotion filters, one predict + update for a batch of 100:")
     for name, ms in filter_benchmark.run(m=100, repeats=10 * args.repeats).items():
-        print(f"{name:>10} {ms:8.3f} ms")
+        print(f"{name:>16} {ms:8.3f} ms")
     print()
     print(upf_benchmark.format_result(upf_benchmark.run()))
     print()

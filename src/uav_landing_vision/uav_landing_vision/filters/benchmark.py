@@ -11,7 +11,8 @@ from .motion import KINDS, MotionFilterConfig, TranslationFilter, make_rotation_
 def run(m: int = 100, repeats: int = 200, seed: int = 0) -> dict[str, float]:
     """Median milliseconds per predict + update step of ``m`` filters, for each filter.
 
-    Keys: ``ukf_translation`` and the rotation filters ``ukf``, ``ubif``, ``ubigaf``.
+    Keys: ``ukf_translation``, the rotation filters ``ukf``, ``ubif``, ``ubigaf``, and the same
+    with the outlier-aware update (``ukf+outliers`` …, ``outlier_prob`` 0.12).
     """
     rng = np.random.default_rng(seed)
     quat = quat_normalise(rng.standard_normal((m, 4)))
@@ -19,6 +20,8 @@ def run(m: int = 100, repeats: int = 200, seed: int = 0) -> dict[str, float]:
     cfg = MotionFilterConfig()
     filters = {"ukf_translation": TranslationFilter(cfg)}
     filters.update({k: make_rotation_filter(MotionFilterConfig(rotation_filter=k)) for k in KINDS})
+    filters.update({f"{k}+outliers": make_rotation_filter(MotionFilterConfig(rotation_filter=k, outlier_prob=0.12))
+                    for k in KINDS})
     out = {}
     for name, filt in filters.items():
         if name == "ukf_translation":

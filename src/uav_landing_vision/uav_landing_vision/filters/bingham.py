@@ -95,7 +95,12 @@ def clamp_concentration(z: np.ndarray) -> np.ndarray:
 
 def normaliser(z: np.ndarray) -> np.ndarray:
     """Normalisation constant ``F(Z)`` (C.2) from the lookup table (§C.1.1)."""
-    return np.exp(_table().lookup(z)[..., 0])
+    return np.exp(log_normaliser(z))
+
+
+def log_normaliser(z: np.ndarray) -> np.ndarray:
+    """``log F(Z)``, straight from the table (no overflow for concentrated densities)."""
+    return _table().lookup(z)[..., 0]
 
 
 def moments(z: np.ndarray) -> np.ndarray:
@@ -142,6 +147,17 @@ def product(m1: np.ndarray, z1: np.ndarray, m2: np.ndarray, z2: np.ndarray) -> t
     """Bingham product (C.3): eigen-decomposition of ``M1 Z1 M1ᵀ + M2 Z2 M2ᵀ``."""
     c = _scaled_gram(m1[..., :3], z1) + _scaled_gram(m2[..., :3], z2)
     return _from_exponent(c)
+
+
+def product_log_evidence(m1: np.ndarray, z1: np.ndarray, m2: np.ndarray, z2: np.ndarray) -> np.ndarray:
+    """``log ∫ P_B(x; M1, Z1) P_B(x; M2, Z2) dx`` over S³: how well two densities agree.
+
+    The integrand is the unnormalised product (C.3), ``exp(xᵀCx)`` with ``C = Σ Mᵢ Zᵢ Mᵢᵀ``;
+    its integral is ``exp(λ_max) F(λ − λ_max)`` over the eigenvalues ``λ`` of ``C``.
+    """
+    lam = np.linalg.eigvalsh(_scaled_gram(m1[..., :3], z1) + _scaled_gram(m2[..., :3], z2))
+    z = clamp_concentration(lam[..., :3] - lam[..., 3:])
+    return lam[..., 3] + log_normaliser(z) - log_normaliser(z1) - log_normaliser(z2)
 
 
 def rotate(m: np.ndarray, g: np.ndarray, side: str = "right") -> np.ndarray:
@@ -203,6 +219,8 @@ def fit(s: np.ndarray, iterations: int = 30) -> tuple[np.ndarray, np.ndarray]:
 
 def _solve_moments(log_target: np.ndarray, iterations: int) -> np.ndarray:
     """``z (N, 3)`` with ``log m_i(z) = log_target`` (Newton on the spline's exact Jacobian)."""
+    if not len(log_target):
+        return np.empty((0, 3))
     table = _table()
     v_max = np.log1p(table.z_max)
     # Start from the concentrated-limit m_i ≈ 1/(4 + 2|z_i|).

@@ -12,7 +12,7 @@ from typing import Literal, Protocol
 
 import numpy as np
 
-from . import bingham
+from . import bingham, outliers
 from .ubif import UBiF
 from .ubigaf import UBiGaF
 from .ukf import RotationUKF, TranslationUKF, UnscentedParams
@@ -40,6 +40,7 @@ class MotionFilterConfig:
     ukf_alpha: float = 1.0  # (A.13)
     ukf_beta: float = 2.0  # (A.21)
     ukf_kappa: float = 0.0  # (A.13)
+    outlier_prob: float = 0.0  # prior probability of a uniform-rotation outlier (ours; 0 = thesis update)
 
     def __post_init__(self):
         if self.rotation_filter not in KINDS:
@@ -55,6 +56,7 @@ class MotionFilterConfig:
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be positive, got {value}")
         UnscentedParams(self.ukf_alpha, self.ukf_beta, self.ukf_kappa)
+        outliers.check_outlier_prob(self.outlier_prob)
 
     @property
     def unscented(self) -> UnscentedParams:
@@ -79,7 +81,7 @@ class RotationFilter(Protocol):
 class _UKFRotation(RotationUKF):
     def __init__(self, cfg: MotionFilterConfig):
         q = np.concatenate([tangent_variance(cfg.process_z), np.full(3, cfg.omega_process_std**2)])  # Q^a (A.9)
-        super().__init__(cfg.dt, q, tangent_variance(cfg.measurement_z), cfg.unscented)
+        super().__init__(cfg.dt, q, tangent_variance(cfg.measurement_z), cfg.unscented, cfg.outlier_prob)
         self.p0 = np.concatenate([tangent_variance(cfg.initial_z), np.full(3, cfg.initial_omega_std**2)])
 
     def init(self, quat, omega):
@@ -93,7 +95,8 @@ class _UKFRotation(RotationUKF):
 
 class _UBiFRotation(UBiF):
     def __init__(self, cfg: MotionFilterConfig):
-        super().__init__(cfg.dt, cfg.process_z, cfg.measurement_z, np.full(3, cfg.omega_process_std**2))
+        super().__init__(cfg.dt, cfg.process_z, cfg.measurement_z, np.full(3, cfg.omega_process_std**2),
+                         cfg.outlier_prob)
         self.z0, self.omega_cov0 = cfg.initial_z, np.full(3, cfg.initial_omega_std**2)
 
     def init(self, quat, omega):
@@ -102,7 +105,8 @@ class _UBiFRotation(UBiF):
 
 class _UBiGaFRotation(UBiGaF):
     def __init__(self, cfg: MotionFilterConfig):
-        super().__init__(cfg.dt, cfg.process_z, cfg.measurement_z, np.full(3, cfg.omega_process_std**2))
+        super().__init__(cfg.dt, cfg.process_z, cfg.measurement_z, np.full(3, cfg.omega_process_std**2),
+                         cfg.outlier_prob)
         self.z0, self.omega_cov0 = cfg.initial_z, np.full(3, cfg.initial_omega_std**2)
 
     def init(self, quat, omega):

@@ -4,7 +4,7 @@ The truth follows the filters' own model (3.12): ``q_{t+1} = q_t ⊗ Ω(ω_t) �
 Bingham ``Φ_t`` (``process_z``) and a random-walk angular velocity. Measurements are
 ``q_t ⊗ Λ_t`` with Bingham ``Λ_t`` (``measurement_z``), except that a fraction are outliers: a
 random rotation of ``outlier_deg`` range, or a 180° turn about a body axis (the symmetric-pose
-confusions of §6.5).
+confusions of §6.5). The first measurement, from which the filters start, is never an outlier.
 """
 
 from dataclasses import dataclass, replace
@@ -50,6 +50,7 @@ def simulate(cfg: MotionFilterConfig, sc: Scenario, rng: np.random.Generator):
         q = quat_multiply(quat_multiply(q, omega_quat(w, cfg.dt)), phi[t])
         w = w + rng.normal(0.0, cfg.omega_process_std, w.shape)
     kind = rng.choice(3, size=shape, p=[1 - sc.outlier_prob - sc.flip_prob, sc.outlier_prob, sc.flip_prob])
+    kind[0] = 0  # the filters start from this measurement, as the tracker's start from a boosted pose
     axis = quat_normalise(np.concatenate([rng.standard_normal(shape + (3,)), np.zeros(shape + (1,))], -1))
     angle = np.radians(rng.uniform(*sc.outlier_deg, size=shape))[..., None]
     big = np.concatenate([axis[..., :3] * np.sin(angle / 2), np.cos(angle / 2)], -1)

@@ -11,6 +11,7 @@ import numpy as np
 
 from ..geometry import omega_quat, quat_canonical, quat_conjugate, quat_multiply
 from . import bingham
+from . import outliers
 from .ukf import kalman_update, spd_matrix, take_filters, unscented_moments
 
 N_SIGMA = 13  # 2r + 2s + 1 with r = s = 3 (Appendix E)
@@ -86,12 +87,14 @@ def bingham_gauss_moments(q, w, weights):
 
 
 class UBiGaF:
-    """Prediction (Algorithm 6) and UKF-like update (Algorithm 7)."""
+    """Prediction (Algorithm 6) and UKF-like update (Algorithm 7); ``outlier_prob`` > 0 makes
+    the update outlier-aware (:mod:`.outliers`; 0 is the thesis's)."""
 
-    def __init__(self, dt: float, process_z, measurement_z, omega_process_cov):
+    def __init__(self, dt: float, process_z, measurement_z, omega_process_cov, outlier_prob: float = 0.0):
         if not dt > 0:
             raise ValueError(f"dt must be positive, got {dt}")
         self.dt = dt
+        self.outlier_prob = outliers.check_outlier_prob(outlier_prob)
         process_z = bingham.check_concentration(process_z, "process_z")
         measurement_z = bingham.check_concentration(measurement_z, "measurement_z")
         self.process_cov = bingham.covariance(np.eye(4), process_z)  # C_Φ (C.6)
@@ -153,7 +156,10 @@ class UBiGaF:
         # Step 4: Cov(ν ⊗ Λ) (C.7) is P_zz plus the spread the composition with Λ adds.
         noise = bingham.tangent_covariance(s.q, bingham.compose_covariance(s.p_q, self.measurement_cov) - s.p_q)
         z = tangent_coordinates(s.q, np.asarray(meas, float))
-        r, p_r = kalman_update(r_sig, r_mean, p_rr, d, z, noise, weights, weights)  # steps 1–7 (A.23)–(A.30)
+        r, p_r, nu, p_nn = kalman_update(r_sig, r_mean, p_rr, d, z, noise, weights, weights)  # steps 1–7
+        if self.outlier_prob > 0.0:
+            w = outliers.inlier_probability(outliers.gaussian_log_density(nu, p_nn), self.outlier_prob)
+            r, p_r = outliers.mix_gaussians(w, r, p_r, r_mean, p_rr)
         half = r[..., :3] / 2.0
         scale = np.maximum(1.0, np.linalg.norm(half, axis=-1, keepdims=True))
         vec = half / scale

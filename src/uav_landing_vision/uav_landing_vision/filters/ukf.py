@@ -20,6 +20,7 @@ from ..geometry import (
     quat_multiply,
     rodrigues_from_quat,
 )
+from . import outliers
 
 
 @dataclass(frozen=True)
@@ -69,7 +70,8 @@ def _cross(dx: np.ndarray, dz: np.ndarray, wc: np.ndarray) -> np.ndarray:
 
 
 def kalman_update(x_sig, x_mean, p_xx, z_sig, z, r, wm, wc):
-    """Measurement update (A.23)–(A.30); returns the posterior mean and covariance.
+    """Measurement update (A.23)–(A.30): the posterior mean and covariance, the innovation ``ν``
+    (A.25) and its covariance (A.26).
 
     ``r`` is the measurement noise added to ``P_zz`` in (A.26), fixed or one per filter.
     """
@@ -80,7 +82,7 @@ def kalman_update(x_sig, x_mean, p_xx, z_sig, z, r, wm, wc):
     gain = np.swapaxes(np.linalg.solve(p_nn, np.swapaxes(p_xz, -1, -2)), -1, -2)  # (A.28)
     x = x_mean + np.einsum("...ij,...j->...i", gain, nu)  # (A.29)
     p = p_xx - gain @ p_nn @ np.swapaxes(gain, -1, -2)  # (A.30)
-    return x, 0.5 * (p + np.swapaxes(p, -1, -2))
+    return x, 0.5 * (p + np.swapaxes(p, -1, -2)), nu, p_nn
 
 
 def take_filters(state, idx):
@@ -139,7 +141,7 @@ class TranslationUKF:
     def update(self, s: UKFState, z: np.ndarray) -> UKFState:
         """Update (A.22)–(A.30) with measured positions ``z (M, 3)`` or ``(3,)``."""
         sig = s.sigmas if s.sigmas is not None else sigma_points(s.x, s.p, self.iota)
-        x, p = kalman_update(sig, s.x, s.p, sig[..., :3], np.asarray(z, float), self.r, self.wm, self.wc)
+        x, p, _, _ = kalman_update(sig, s.x, s.p, sig[..., :3], np.asarray(z, float), self.r, self.wm, self.wc)
         return UKFState(x, p)
 
 
@@ -157,12 +159,17 @@ class RotationUKFState:
 
 
 class RotationUKF:
-    """UKF on error generalised Rodrigues parameters and angular velocity (A.3)–(A.9)."""
+    """UKF on error generalised Rodrigues parameters and angular velocity (A.3)–(A.9).
 
-    def __init__(self, dt: float, process_cov, measurement_cov, params: UnscentedParams = UnscentedParams()):
+    ``outlier_prob`` > 0 makes the update outlier-aware (:mod:`.outliers`; 0 is the thesis's).
+    """
+
+    def __init__(self, dt: float, process_cov, measurement_cov, params: UnscentedParams = UnscentedParams(),
+                 outlier_prob: float = 0.0):
         if not dt > 0:
             raise ValueError(f"dt must be positive, got {dt}")
         self.dt = dt
+        self.outlier_prob = outliers.check_outlier_prob(outlier_prob)
         self.q = spd_matrix(process_cov, 6, "process_cov")  # Q^a = diag(Q^r, Q^ω) (A.9)
         self.r = spd_matrix(measurement_cov, 3, "measurement_cov")
         self.wm, self.wc, self.iota = params.weights(6)
@@ -191,7 +198,10 @@ class RotationUKF:
         """Update (A.22)–(A.30) with measured quaternions ``z``, then reset ``d`` into ``q`` (A.9)."""
         sig = s.sigmas if s.sigmas is not None else sigma_points(s.x, s.p, self.iota)
         z_d = rodrigues_from_quat(quat_multiply(quat_conjugate(s.q), np.asarray(z, float)))  # (A.11)
-        x, p = kalman_update(sig, s.x, s.p, sig[..., :3], z_d, self.r, self.wm, self.wc)
+        x, p, nu, p_nn = kalman_update(sig, s.x, s.p, sig[..., :3], z_d, self.r, self.wm, self.wc)
+        if self.outlier_prob > 0.0:
+            w = outliers.inlier_probability(outliers.gaussian_log_density(nu, p_nn), self.outlier_prob)
+            x, p = outliers.mix_gaussians(w, x, p, s.x, s.p)
         q = quat_canonical(quat_multiply(s.q, quat_from_rodrigues(x[..., :3])))
         return RotationUKFState(q, np.concatenate([np.zeros_like(x[..., :3]), x[..., 3:]], axis=-1), p)
 
