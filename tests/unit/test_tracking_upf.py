@@ -195,7 +195,8 @@ def test_variant_parsing_and_configuration():
     assert TrackerConfig(variant="C5").motion.rotation_filter == "ubigaf"
     assert TrackerConfig.from_variant("C4N2").name == "C4N2"
     for bad in ({"particles": 1}, {"boosted": 0}, {"metric": "sift"}, {"optimiser": "adam"}, {"variant": "C7"},
-                {"depth_prior_sigma": -0.1}, {"depth_prior_floor": 0.0}, {"depth_prior_max_m": 0.0}):
+                {"depth_prior_sigma": -0.1}, {"depth_prior_floor": 0.0}, {"depth_prior_max_m": 0.0},
+                {"depth_prior_gate": -0.1}):
         with pytest.raises(ValueError):
             TrackerConfig(**bad)
 
@@ -237,3 +238,23 @@ def test_depth_prior_pulls_depth_to_the_boosted_depth_and_reports_the_likelihood
     np.testing.assert_allclose(pulled.best_likelihood, alone)
     _, gated = last(depth_prior_sigma=0.02, depth_prior_floor=0.05, depth_prior_max_m=6.0)
     np.testing.assert_array_equal(gated.position, plain.position)
+
+
+def test_depth_prior_gate_drops_a_boosted_depth_that_jumps_off_the_track(renderer, frame):
+    """With ``depth_prior_gate``, a boosted depth more than that fraction off the last estimate's
+    depth sets no prior (scores are the likelihood alone); one within it does. Without a track
+    (first frame) the gate does not apply."""
+    cfg = TrackerConfig.from_variant("C4N2", particles=40, boosted=10, depth_prior_gate=0.25)
+    tracker = Tracker(cfg, CAMERA, renderer)
+    tracker.step(frame, 0, hypotheses(5))
+    assert tracker._anchor == pytest.approx(np.median(hypotheses(5).positions[:40, 2]))
+    last = tracker.particles.pos[0, 2]
+    near = hypotheses(6)
+    near.positions = near.positions * np.array([1.0, 1.0, 0.7 * last / TRUE_POS[2]])  # 30 % nearer
+    tracker.step(frame, 1, near)
+    assert tracker._anchor is None
+    np.testing.assert_array_equal(tracker._prior(np.array([4.0, 6.0])), 1.0)
+    close = hypotheses(7)
+    close.positions = close.positions * np.array([1.0, 1.0, 0.9])  # 10 % nearer: within the gate
+    tracker.step(frame, 2, close)
+    assert tracker._anchor == pytest.approx(np.median(close.positions[:10, 2]))  # the 10 boosted of a track

@@ -13,7 +13,8 @@ Per frame (:meth:`Tracker.step`), with M particles of which M0 = M − boosted a
 3. **Weighting and resampling** (§5.4): one batched render + score, then the configured
    App. B scheme back to M particles. Ours: every score (weighting, z_t, optimisation) is the
    likelihood times a depth prior about the boosted depth (:func:`depth_prior`) when that depth
-   is within ``depth_prior_max_m``; the track state and ``best_likelihood`` use the likelihood alone.
+   is within ``depth_prior_max_m`` and within ``depth_prior_gate`` of the last estimate's; the
+   track state and ``best_likelihood`` use the likelihood alone.
 4. **Pose optimisation** (§5.5): N iterations of the configured optimiser (PFO by default, with
    the §6.7.1 noise, its translation part scaled by depth / ``pfo.reference_depth_m``: ours).
    Filters are then recentred on the optimised poses.
@@ -80,6 +81,7 @@ class TrackerConfig:
     depth_prior_sigma: float = 0.20  # ours, 0 = thesis: relative σ of the boosted-depth prior (depth_prior)
     depth_prior_floor: float = 0.5  # the prior's value far from the boosted depth
     depth_prior_max_m: float = 30.0  # no prior where the boosted depth is beyond this
+    depth_prior_gate: float = 0.25  # ours, 0 = off: no prior when z_b is off the last estimate's depth by more (relative)
 
     def __post_init__(self):
         if self.variant not in COMBINATIONS:
@@ -96,6 +98,8 @@ class TrackerConfig:
             raise ValueError("need tile >= 16 and non-negative covariance floors")
         if not (self.depth_prior_sigma >= 0 and 0 < self.depth_prior_floor <= 1 and self.depth_prior_max_m > 0):
             raise ValueError("need depth_prior_sigma >= 0, 0 < depth_prior_floor <= 1 and depth_prior_max_m > 0")
+        if not self.depth_prior_gate >= 0:
+            raise ValueError(f"depth_prior_gate must be non-negative, got {self.depth_prior_gate!r}")
         if self.variant in ROTATION_FILTER:
             object.__setattr__(self, "motion", replace(self.motion, rotation_filter=ROTATION_FILTER[self.variant]))
 
@@ -234,8 +238,7 @@ class Tracker:
         self.likelihood.prepare(frame)
         clock.lap("prepare")
         new = _hypothesis_set(hypotheses, self.hypotheses_needed())
-        anchor = float(np.median(new.pos[:, 2])) if new is not None and self.config.depth_prior_sigma > 0 else None
-        self._anchor = anchor if anchor is not None and 0 < anchor <= self.config.depth_prior_max_m else None
+        self._anchor = self._boosted_depth(new)
         mixed = self._mix(new)
         clock.lap("proposal")
         if mixed is None:
@@ -252,6 +255,22 @@ class Tracker:
             particles = self._optimise(particles)
         clock.lap("optimisation")
         return self._output(particles, stamp_ns, clock)
+
+    def _boosted_depth(self, new: ParticleSet | None) -> float | None:
+        """This frame's anchor z_b of the depth prior: the boosted hypotheses' median depth, or None
+        (no prior) beyond ``depth_prior_max_m`` or, with ``depth_prior_gate``, when it disagrees
+        with the last estimate's depth by more than that fraction."""
+        cfg = self.config
+        if new is None or cfg.depth_prior_sigma <= 0:
+            return None
+        anchor = float(np.median(new.pos[:, 2]))
+        if not 0 < anchor <= cfg.depth_prior_max_m:
+            return None
+        if cfg.depth_prior_gate > 0 and self.particles is not None:
+            last = float(self.particles.pos[0, 2])
+            if abs(anchor / last - 1.0) > cfg.depth_prior_gate:
+                return None
+        return anchor
 
     def _prior(self, depth: np.ndarray) -> np.ndarray:
         """The depth prior of this frame at each depth (ones without an anchor)."""
