@@ -166,6 +166,18 @@ def test_tracker_covariance_is_psd_and_floored(renderer, frame):
     assert cov.shape == (6, 6) and np.allclose(cov, cov.T)
     assert np.linalg.eigvalsh(cov).min() >= 0.999 * np.radians(1.0) ** 2  # the smaller floor (1°)
     assert np.all(np.diag(cov)[:3] >= 0.05**2)
+    pos = results[-1].position
+    line_of_sight = pos / np.linalg.norm(pos)
+    assert line_of_sight @ cov[:3, :3] @ line_of_sight >= (0.05 * np.linalg.norm(pos)) ** 2
+
+
+def test_range_fraction_adds_variance_along_the_line_of_sight_only(renderer, frame):
+    _, without = run(renderer, frame, "C4N2", covariance_range_fraction=0.0)
+    _, with_ = run(renderer, frame, "C4N2", covariance_range_fraction=0.1)
+    a, b = without[-1], with_[-1]
+    np.testing.assert_array_equal(a.position, b.position)  # the estimate does not change
+    np.testing.assert_allclose(b.covariance[:3, :3] - a.covariance[:3, :3], 0.01 * np.outer(a.position, a.position))
+    np.testing.assert_array_equal(b.covariance[3:, :], a.covariance[3:, :])
 
 
 @pytest.mark.parametrize("kind", ["ukf", "ubif", "ubigaf"])
@@ -196,7 +208,7 @@ def test_variant_parsing_and_configuration():
     assert TrackerConfig.from_variant("C4N2").name == "C4N2"
     for bad in ({"particles": 1}, {"boosted": 0}, {"metric": "sift"}, {"optimiser": "adam"}, {"variant": "C7"},
                 {"depth_prior_sigma": -0.1}, {"depth_prior_floor": 0.0}, {"depth_prior_max_m": 0.0},
-                {"depth_prior_gate": -0.1}):
+                {"depth_prior_gate": -0.1}, {"covariance_range_fraction": -0.01}):
         with pytest.raises(ValueError):
             TrackerConfig(**bad)
 

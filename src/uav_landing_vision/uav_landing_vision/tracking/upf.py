@@ -19,7 +19,9 @@ Per frame (:meth:`Tracker.step`), with M particles of which M0 = M − boosted a
    the §6.7.1 noise, its translation part scaled by depth / ``pfo.reference_depth_m``: ours).
    Filters are then recentred on the optimised poses.
 5. **Output**: the best particle (§6.7.1.2), a 6×6 covariance from the weighted particle cloud
-   (:func:`particle_covariance`), the track state (:mod:`.track_state`) and per-stage times.
+   (:func:`particle_covariance`) with a range-proportional σ added along the line of sight
+   (ours: the cloud's spread alone covers too little of the depth error), the track state
+   (:mod:`.track_state`) and per-stage times.
 
 Everything is batched over particles; each likelihood evaluation is one ``Renderer.silhouettes``
 call. Random draws come from one Generator seeded by ``TrackerConfig.seed``.
@@ -78,6 +80,7 @@ class TrackerConfig:
     track: TrackStateConfig = field(default_factory=TrackStateConfig)
     covariance_floor_m: float = 0.05  # σ added to each translation variance
     covariance_floor_deg: float = 1.0  # σ added to each rotation variance
+    covariance_range_fraction: float = 0.05  # ours: σ of this fraction of the range added along the line of sight
     depth_prior_sigma: float = 0.20  # ours, 0 = thesis: relative σ of the boosted-depth prior (depth_prior)
     depth_prior_floor: float = 0.5  # the prior's value far from the boosted depth
     depth_prior_max_m: float = 30.0  # no prior where the boosted depth is beyond this
@@ -94,7 +97,8 @@ class TrackerConfig:
             raise ValueError(f"resampling must be one of {sorted(RESAMPLERS)}, got {self.resampling!r}")
         if self.optimiser not in OPTIMISERS:
             raise ValueError(f"optimiser must be one of {sorted(OPTIMISERS)}, got {self.optimiser!r}")
-        if self.tile < 16 or not (self.covariance_floor_m >= 0 and self.covariance_floor_deg >= 0):
+        floors = (self.covariance_floor_m, self.covariance_floor_deg, self.covariance_range_fraction)
+        if self.tile < 16 or not all(f >= 0 for f in floors):
             raise ValueError("need tile >= 16 and non-negative covariance floors")
         if not (self.depth_prior_sigma >= 0 and 0 < self.depth_prior_floor <= 1 and self.depth_prior_max_m > 0):
             raise ValueError("need depth_prior_sigma >= 0, 0 < depth_prior_floor <= 1 and depth_prior_max_m > 0")
@@ -378,6 +382,7 @@ class Tracker:
         self.particles = particles
         pos, quat = particles.pos[0].copy(), particles.quat[0].copy()
         cov = particle_covariance(particles, pos, quat, cfg.covariance_floor_m, np.radians(cfg.covariance_floor_deg))
+        cov[:3, :3] += cfg.covariance_range_fraction**2 * np.outer(pos, pos)  # (f·|p|)² along p
         n_eff = particles.effective_size()
         clock.lap("output")
         return TrackResult(stamp_ns, state, pos, quat, cov, best_w, n_eff, clock.ms, particles)
