@@ -127,7 +127,8 @@ class UBiF:
             # Below 1e-3 the prediction's share changes the moments less than the table's accuracy.
             mixed = np.nonzero(w < 1.0 - 1e-3)
             wq = w[mixed][..., None, None]
-            cov = wq * bingham.covariance(m[mixed], z[mixed]) + (1.0 - wq) * bingham.covariance(s.m[mixed], s.z[mixed])
+            cov = wq * bingham.covariance(m[mixed], z[mixed])
+            cov += (1.0 - wq) * bingham.covariance(s.m[mixed], s.z[mixed])
             m, z = m.copy(), z.copy()
             m[mixed], z[mixed] = bingham.fit(cov)
             omega, omega_cov = outliers.mix_gaussians(w, omega, omega_cov, s.omega, s.omega_cov)

@@ -10,8 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..geometry import omega_quat, quat_canonical, quat_conjugate, quat_multiply
-from . import bingham
-from . import outliers
+from . import bingham, outliers
 from .ukf import kalman_update, spd_matrix, take_filters, unscented_moments
 
 N_SIGMA = 13  # 2r + 2s + 1 with r = s = 3 (Appendix E)

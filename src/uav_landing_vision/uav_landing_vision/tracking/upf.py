@@ -84,7 +84,7 @@ class TrackerConfig:
     depth_prior_sigma: float = 0.20  # ours, 0 = thesis: relative σ of the boosted-depth prior (depth_prior)
     depth_prior_floor: float = 0.5  # the prior's value far from the boosted depth
     depth_prior_max_m: float = 30.0  # no prior where the boosted depth is beyond this
-    depth_prior_gate: float = 0.25  # ours, 0 = off: no prior when z_b is off the last estimate's depth by more (relative)
+    depth_prior_gate: float = 0.25  # ours, 0 = off: no prior when z_b is over this fraction off the last depth
 
     def __post_init__(self):
         if self.variant not in COMBINATIONS:
