@@ -180,15 +180,18 @@ def depth_prior(depth: np.ndarray, anchor: float, sigma: float, floor: float) ->
 
 
 def particle_covariance(particles: ParticleSet, pos: np.ndarray, quat: np.ndarray,
-                        floor_m: float = 0.0, floor_rad: float = 0.0) -> np.ndarray:
+                        floor_m: float = 0.0, floor_rad: float = 0.0, range_fraction: float = 0.0) -> np.ndarray:
     """Weighted covariance (6×6, ROS order) of the particles about their weighted mean, in the
-    coordinates ``[p − pos, log(q ⊗ quat⁻¹)]``, plus ``floor²`` on the diagonal."""
+    coordinates ``[p − pos, log(q ⊗ quat⁻¹)]``, plus ``floor²`` on the diagonal and, along the
+    line of sight ``pos``, a variance ``(range_fraction·|pos|)²``."""
     w = particles.normalised_weights()
     rot = (Rotation.from_quat(particles.quat) * Rotation.from_quat(quat).inv()).as_rotvec()
     d = np.hstack([particles.pos - pos, rot])
     dev = d - w @ d
     cov = (dev * w[:, None]).T @ dev
-    return 0.5 * (cov + cov.T) + np.diag(np.repeat([floor_m**2, floor_rad**2], 3))
+    cov = 0.5 * (cov + cov.T) + np.diag(np.repeat([floor_m**2, floor_rad**2], 3))
+    cov[:3, :3] += range_fraction**2 * np.outer(pos, pos)
+    return cov
 
 
 def _optimiser(cfg: TrackerConfig):
@@ -381,8 +384,8 @@ class Tracker:
             return self._empty(stamp_ns, clock, best_w)
         self.particles = particles
         pos, quat = particles.pos[0].copy(), particles.quat[0].copy()
-        cov = particle_covariance(particles, pos, quat, cfg.covariance_floor_m, np.radians(cfg.covariance_floor_deg))
-        cov[:3, :3] += cfg.covariance_range_fraction**2 * np.outer(pos, pos)  # (f·|p|)² along p
+        cov = particle_covariance(particles, pos, quat, cfg.covariance_floor_m, np.radians(cfg.covariance_floor_deg),
+                                  cfg.covariance_range_fraction)
         n_eff = particles.effective_size()
         clock.lap("output")
         return TrackResult(stamp_ns, state, pos, quat, cov, best_w, n_eff, clock.ms, particles)
