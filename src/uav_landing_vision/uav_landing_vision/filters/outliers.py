@@ -46,3 +46,13 @@ def mix_gaussians(w, mean1, cov1, mean0, cov0) -> tuple[np.ndarray, np.ndarray]:
     spread = w[..., None] * (cov1 + d1[..., :, None] * d1[..., None, :])
     cov = spread + (1.0 - w[..., None]) * (cov0 + d0[..., :, None] * d0[..., None, :])
     return mean, 0.5 * (cov + np.swapaxes(cov, -1, -2))
+
+
+def gaussian_update(eps: float, nu, innovation_cov, mean, cov, prior_mean, prior_cov):
+    """The outlier-aware form of a Kalman update: ``(mean, cov)`` updated with innovation ``nu``
+    of covariance ``innovation_cov``, mixed with the prediction ``(prior_mean, prior_cov)`` by
+    the inlier probability; unchanged when ``eps`` is 0."""
+    if eps == 0.0:
+        return mean, cov
+    w = inlier_probability(gaussian_log_density(nu, innovation_cov), eps)
+    return mix_gaussians(w, mean, cov, prior_mean, prior_cov)

@@ -156,9 +156,7 @@ class UBiGaF:
         noise = bingham.tangent_covariance(s.q, bingham.compose_covariance(s.p_q, self.measurement_cov) - s.p_q)
         z = tangent_coordinates(s.q, np.asarray(meas, float))
         r, p_r, nu, p_nn = kalman_update(r_sig, r_mean, p_rr, d, z, noise, weights, weights)  # steps 1–7
-        if self.outlier_prob > 0.0:
-            w = outliers.inlier_probability(outliers.gaussian_log_density(nu, p_nn), self.outlier_prob)
-            r, p_r = outliers.mix_gaussians(w, r, p_r, r_mean, p_rr)
+        r, p_r = outliers.gaussian_update(self.outlier_prob, nu, p_nn, r, p_r, r_mean, p_rr)
         half = r[..., :3] / 2.0
         scale = np.maximum(1.0, np.linalg.norm(half, axis=-1, keepdims=True))
         vec = half / scale

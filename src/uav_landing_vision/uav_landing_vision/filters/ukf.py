@@ -199,9 +199,7 @@ class RotationUKF:
         sig = s.sigmas if s.sigmas is not None else sigma_points(s.x, s.p, self.iota)
         z_d = rodrigues_from_quat(quat_multiply(quat_conjugate(s.q), np.asarray(z, float)))  # (A.11)
         x, p, nu, p_nn = kalman_update(sig, s.x, s.p, sig[..., :3], z_d, self.r, self.wm, self.wc)
-        if self.outlier_prob > 0.0:
-            w = outliers.inlier_probability(outliers.gaussian_log_density(nu, p_nn), self.outlier_prob)
-            x, p = outliers.mix_gaussians(w, x, p, s.x, s.p)
+        x, p = outliers.gaussian_update(self.outlier_prob, nu, p_nn, x, p, s.x, s.p)
         q = quat_canonical(quat_multiply(s.q, quat_from_rodrigues(x[..., :3])))
         return RotationUKFState(q, np.concatenate([np.zeros_like(x[..., :3]), x[..., 3:]], axis=-1), p)
 
