@@ -14,6 +14,7 @@ from uav_landing_vision.sim.trajectory import FACING_CAMERA
 from uav_landing_vision.tracking.motion_bank import MotionBank
 from uav_landing_vision.tracking.optimisation import PFOConfig, rotate_body
 from uav_landing_vision.tracking.particles import ParticleSet
+from uav_landing_vision.tracking.refinement import RotationRefinementConfig
 from uav_landing_vision.tracking.track_state import TrackMonitor, TrackState, TrackStateConfig
 from uav_landing_vision.tracking.upf import (
     Tracker,
@@ -246,7 +247,7 @@ def test_depth_prior_pulls_depth_to_the_boosted_depth_and_reports_the_likelihood
     _, plain = last(depth_prior_sigma=0.0)
     tracker, pulled = last(depth_prior_sigma=0.02, depth_prior_floor=0.05)
     assert abs(pulled.position[2] - anchor) < abs(plain.position[2] - anchor)
-    alone = tracker.likelihood.score(pulled.quat[None], pulled.position[None])[0]
+    alone = tracker.likelihood.score(pulled.particles.quat[:1], pulled.particles.pos[:1])[0]
     np.testing.assert_allclose(pulled.best_likelihood, alone)
     _, gated = last(depth_prior_sigma=0.02, depth_prior_floor=0.05, depth_prior_max_m=6.0)
     np.testing.assert_array_equal(gated.position, plain.position)
@@ -270,3 +271,21 @@ def test_depth_prior_gate_drops_a_boosted_depth_that_jumps_off_the_track(rendere
     close.positions = close.positions * np.array([1.0, 1.0, 0.9])  # 10 % nearer: within the gate
     tracker.step(frame, 2, close)
     assert tracker._anchor == pytest.approx(np.median(close.positions[:10, 2]))  # the 10 boosted of a track
+
+
+def test_rotation_refinement_changes_only_the_published_rotation(renderer, frame):
+    """The refinement turns the published rotation to one that scores at least as well as the best
+    particle's, at the same position; the particles, and so every later frame, stay as without it."""
+    off = RotationRefinementConfig()
+    on = RotationRefinementConfig(candidates=32, sigma_deg=(3.0, 1.0))
+    a_tracker, a = run(renderer, frame, "C4N2", refine=off)
+    b_tracker, b = run(renderer, frame, "C4N2", refine=on)
+    for ra, rb in zip(a, b):
+        np.testing.assert_array_equal(ra.position, rb.position)
+        np.testing.assert_array_equal(ra.particles.pos, rb.particles.pos)
+        np.testing.assert_array_equal(ra.particles.quat, rb.particles.quat)
+        np.testing.assert_array_equal(ra.quat, ra.particles.quat[0])
+        scores = b_tracker._score(ParticleSet.from_poses(np.tile(rb.position, (2, 1)), np.stack([rb.quat, ra.quat])))
+        assert scores[0] >= scores[1]
+    assert any(not np.array_equal(ra.quat, rb.quat) for ra, rb in zip(a, b))
+    assert b[-1].stage_ms["refinement"] > 0.0

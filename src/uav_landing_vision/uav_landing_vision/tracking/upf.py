@@ -18,13 +18,15 @@ Per frame (:meth:`Tracker.step`), with M particles of which M0 = M − boosted a
 4. **Pose optimisation** (§5.5): N iterations of the configured optimiser (PFO by default, with
    the §6.7.1 noise, its translation part scaled by depth / ``pfo.reference_depth_m``: ours).
    Filters are then recentred on the optimised poses.
-5. **Output**: the best particle (§6.7.1.2), a 6×6 covariance from the weighted particle cloud
+5. **Output**: the best particle (§6.7.1.2), its rotation refined by a rotation-only local search
+   when ``refine.candidates`` > 0 (ours, :mod:`.refinement`; the particles are not changed), a 6×6 covariance from the weighted particle cloud
    (:func:`particle_covariance`) with a range-proportional σ added along the line of sight
    (ours: the cloud's spread alone covers too little of the depth error), the track state
    (:mod:`.track_state`) and per-stage times.
 
 Everything is batched over particles; each likelihood evaluation is one ``Renderer.silhouettes``
-call. Random draws come from one Generator seeded by ``TrackerConfig.seed``.
+call. Random draws come from a Generator seeded by ``TrackerConfig.seed``; the refinement has its
+own, spawned from the same seed, so turning it on leaves the particles' draws unchanged.
 """
 
 import re
@@ -40,6 +42,7 @@ from .likelihood import LIKELIHOODS, ColourConfig, make_likelihood
 from .motion_bank import MotionBank
 from .optimisation import PFO, PSO, ConstrictedPSO, GAbF, PFOConfig, evaluate
 from .particles import ParticleSet
+from .refinement import RotationRefinement, RotationRefinementConfig
 from .resampling import RESAMPLERS, fixed_size, resample
 from .track_state import TrackMonitor, TrackState, TrackStateConfig
 
@@ -85,6 +88,8 @@ class TrackerConfig:
     depth_prior_floor: float = 0.5  # the prior's value far from the boosted depth
     depth_prior_max_m: float = 30.0  # no prior where the boosted depth is beyond this
     depth_prior_gate: float = 0.25  # ours, 0 = off: no prior when z_b is over this fraction off the last depth
+    refine: RotationRefinementConfig = field(
+        default_factory=lambda: RotationRefinementConfig(candidates=64, sigma_deg=(6.0, 3.0, 1.5)))  # ours, see yaml
 
     def __post_init__(self):
         if self.variant not in COMBINATIONS:
@@ -122,7 +127,8 @@ class TrackerConfig:
         return self.variant in ROTATION_FILTER
 
 
-STAGES = ("prepare", "proposal", "measurement", "filtering", "weighting", "resampling", "optimisation", "output")
+STAGES = ("prepare", "proposal", "measurement", "filtering", "weighting", "resampling", "optimisation", "refinement",
+          "output")
 
 
 @dataclass(frozen=True)
@@ -130,7 +136,9 @@ class TrackResult:
     """One frame's output. ``position``/``quat``: UAV body in the camera optical frame (NaN when
     there is no estimate). ``covariance``: 6×6, ROS order (x, y, z, rot_x, rot_y, rot_z); the
     rotation part is of the small rotation r with ``q_particle = exp(r) ⊗ q_estimate``, i.e.
-    about the camera's fixed axes (as ``PoseWithCovariance`` expects), in rad²."""
+    about the camera's fixed axes (as ``PoseWithCovariance`` expects), in rad².
+    ``best_likelihood``: the best particle's likelihood (before the rotation refinement); it
+    drives the track state."""
 
     stamp_ns: int
     state: TrackState
@@ -217,6 +225,8 @@ class Tracker:
         self.likelihood = make_likelihood(config.metric, renderer, config.colour if config.metric == "colour" else None)
         self.optimiser = _optimiser(config)
         self.rng = np.random.default_rng(np.random.SeedSequence(config.seed))
+        self.refinement = RotationRefinement(config.refine)
+        self._refine_rng = np.random.default_rng(np.random.SeedSequence(config.seed).spawn(1)[0])
         self.monitor = TrackMonitor(config.track)
         self.particles: ParticleSet | None = None  # the last frame's set, best first
         self.filters = MotionBank(config.motion) if config.uses_filters else None
@@ -365,7 +375,7 @@ class Tracker:
         return ParticleSet.concat([elite, out.take(keep)])
 
     def _output(self, particles: ParticleSet, stamp_ns: int, clock) -> TrackResult:
-        """Step 5: best particle, covariance, track state; the set is kept best first."""
+        """Step 5: best particle (rotation refined), covariance, track state; the set is kept best first."""
         cfg = self.config
         order = np.argsort(-particles.weight, kind="stable")
         particles = particles.take(order)
@@ -383,7 +393,9 @@ class Tracker:
             self.particles = particles.with_weight(np.full(len(particles), 1.0 / len(particles)))
             return self._empty(stamp_ns, clock, best_w)
         self.particles = particles
-        pos, quat = particles.pos[0].copy(), particles.quat[0].copy()
+        pos = particles.pos[0].copy()
+        quat, _ = self.refinement.refine(self._score, pos, particles.quat[0], particles.weight[0], self._refine_rng)
+        clock.lap("refinement")
         cov = particle_covariance(particles, pos, quat, cfg.covariance_floor_m, np.radians(cfg.covariance_floor_deg),
                                   cfg.covariance_range_fraction)
         n_eff = particles.effective_size()
