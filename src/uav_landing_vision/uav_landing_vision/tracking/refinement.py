@@ -28,7 +28,7 @@ class RotationRefinementConfig:
         if not (isinstance(self.candidates, int) and self.candidates >= 0):
             raise ValueError(f"refinement candidates must be a non-negative integer, got {self.candidates!r}")
         if not self.sigma_deg or not all(s > 0 for s in self.sigma_deg):
-            raise ValueError(f"refinement sigma_deg must be a non-empty list of positive values, got {self.sigma_deg!r}")
+            raise ValueError(f"refinement sigma_deg must be non-empty and positive, got {self.sigma_deg!r}")
 
 
 class RotationRefinement:

@@ -18,11 +18,11 @@ Per frame (:meth:`Tracker.step`), with M particles of which M0 = M − boosted a
 4. **Pose optimisation** (§5.5): N iterations of the configured optimiser (PFO by default, with
    the §6.7.1 noise, its translation part scaled by depth / ``pfo.reference_depth_m``: ours).
    Filters are then recentred on the optimised poses.
-5. **Output**: the best particle (§6.7.1.2), its rotation refined by a rotation-only local search
-   when ``refine.candidates`` > 0 (ours, :mod:`.refinement`; the particles are not changed), a 6×6 covariance from the weighted particle cloud
-   (:func:`particle_covariance`) with a range-proportional σ added along the line of sight
-   (ours: the cloud's spread alone covers too little of the depth error), the track state
-   (:mod:`.track_state`) and per-stage times.
+5. **Output**: the best particle (§6.7.1.2) with, ours, its rotation refined by a rotation-only
+   local search (:mod:`.refinement`, ``refine.candidates`` > 0; the particles are not changed),
+   a 6×6 covariance from the weighted particle cloud (:func:`particle_covariance`) with a
+   range-proportional σ added along the line of sight (ours: the cloud's spread alone covers
+   too little of the depth error), the track state (:mod:`.track_state`) and per-stage times.
 
 Everything is batched over particles; each likelihood evaluation is one ``Renderer.silhouettes``
 call. Random draws come from a Generator seeded by ``TrackerConfig.seed``; the refinement has its
