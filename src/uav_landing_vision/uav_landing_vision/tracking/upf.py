@@ -89,7 +89,7 @@ class TrackerConfig:
     depth_prior_max_m: float = 30.0  # no prior where the boosted depth is beyond this
     depth_prior_gate: float = 0.25  # ours, 0 = off: no prior when z_b is over this fraction off the last depth
     refine: RotationRefinementConfig = field(
-        default_factory=lambda: RotationRefinementConfig(candidates=128, sigma_deg=(3.0,)))  # ours, see yaml
+        default_factory=lambda: RotationRefinementConfig(candidates=64, sigma_deg=(3.0,)))  # ours, see yaml
 
     def __post_init__(self):
         if self.variant not in COMBINATIONS:
