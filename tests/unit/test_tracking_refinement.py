@@ -28,7 +28,7 @@ def test_refinement_climbs_towards_the_peak_at_the_given_position():
     start = rotate_body(TARGET[None], np.radians([[6.0, -4.0, 3.0]]))[0]
     score = PeakAt(TARGET)
     start_score = score(_one(start))[0]
-    quat, best = RotationRefinement(RotationRefinementConfig(candidates=64)).refine(
+    quat, best = RotationRefinement(RotationRefinementConfig(candidates=64, sigma_deg=(4.0, 1.5))).refine(
         score, POS, start, start_score, np.random.default_rng(0))
     assert score.calls == 1 + 2  # the start's score above, then one batched call per stage
     assert geodesic_angle(quat, TARGET) < 0.5 * geodesic_angle(start, TARGET)

@@ -22,7 +22,7 @@ class RotationRefinementConfig:
     """``candidates`` per stage (0 = off, the thesis); ``sigma_deg``: each stage's σ per body axis."""
 
     candidates: int = 0
-    sigma_deg: tuple[float, ...] = (4.0, 1.5)
+    sigma_deg: tuple[float, ...] = (3.0,)
 
     def __post_init__(self):
         if not (isinstance(self.candidates, int) and self.candidates >= 0):
