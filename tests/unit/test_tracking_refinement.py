@@ -5,6 +5,7 @@ import pytest
 
 from uav_landing_vision.geometry import geodesic_angle
 from uav_landing_vision.tracking.optimisation import rotate_body
+from uav_landing_vision.tracking.particles import ParticleSet
 from uav_landing_vision.tracking.refinement import RotationRefinement, RotationRefinementConfig
 
 TARGET = np.array([0.2, -0.1, 0.3, 0.9]) / np.linalg.norm([0.2, -0.1, 0.3, 0.9])
@@ -63,6 +64,4 @@ def test_refinement_config_is_validated(bad):
 
 
 def _one(quat):
-    from uav_landing_vision.tracking.particles import ParticleSet
-
     return ParticleSet.from_poses(POS[None], np.asarray(quat)[None])

@@ -278,7 +278,7 @@ def test_rotation_refinement_changes_only_the_published_rotation(renderer, frame
     particle's, at the same position; the particles, and so every later frame, stay as without it."""
     off = RotationRefinementConfig()
     on = RotationRefinementConfig(candidates=32, sigma_deg=(3.0, 1.0))
-    a_tracker, a = run(renderer, frame, "C4N2", refine=off)
+    _, a = run(renderer, frame, "C4N2", refine=off)
     b_tracker, b = run(renderer, frame, "C4N2", refine=on)
     for ra, rb in zip(a, b):
         np.testing.assert_array_equal(ra.position, rb.position)
