@@ -95,3 +95,20 @@ def test_best_is_the_highest_weight():
     np.testing.assert_array_equal(b.pos[0], p.pos[np.argmax(p.weight)])
     with pytest.raises(ValueError, match="empty"):
         p.take(np.array([], dtype=int)).best()
+
+
+def test_mean_pose_is_the_weighted_mean_and_the_scatter_matrix_mode():
+    """Position: the weighted mean; rotation: scipy's weighted quaternion mean (the same
+    eigenvector, Markley et al. 2007), blind to the signs of the stored quaternions."""
+    rng = np.random.default_rng(3)
+    centre = Rotation.from_rotvec([0.4, -1.2, 2.0])
+    rot = Rotation.from_rotvec(rng.normal(0.0, 0.3, (30, 3))) * centre
+    weight, pos = rng.random(30), rng.normal(size=(30, 3))
+    p = ParticleSet.from_poses(pos, rot.as_quat(), weight)
+    mean_pos, mean_quat = p.mean_pose()
+    np.testing.assert_allclose(mean_pos, weight @ pos / weight.sum(), rtol=1e-12)
+    oracle = rot.mean(weights=weight).as_quat()
+    assert abs(np.dot(mean_quat, oracle)) == pytest.approx(1.0, abs=1e-12)
+    assert mean_quat[3] >= 0.0
+    flipped = rot.as_quat() * np.where(rng.random(30) < 0.5, -1.0, 1.0)[:, None]
+    np.testing.assert_allclose(ParticleSet.from_poses(pos, flipped, weight).mean_pose()[1], mean_quat, atol=1e-12)

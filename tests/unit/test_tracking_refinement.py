@@ -57,6 +57,22 @@ def test_refinement_off_draws_and_scores_nothing():
     assert rng.bit_generator.state == before
 
 
+def test_refinement_scores_an_unscored_start_in_its_first_batch():
+    """With no score for the start (the particles' mean pose), the first batch holds the start
+    too: it is kept if nothing beats it, and its score comes back."""
+    score = PeakAt(TARGET)
+    quat, best = RotationRefinement(RotationRefinementConfig(candidates=32)).refine(
+        score, POS, TARGET, None, np.random.default_rng(1))
+    np.testing.assert_allclose(quat, TARGET, atol=1e-15)
+    assert best == pytest.approx(1.0) and score.calls == 1
+    assert score.positions[0].shape == (33, 3)
+    start = rotate_body(TARGET[None], np.radians([[6.0, -4.0, 3.0]]))[0]
+    climbed, best = RotationRefinement(RotationRefinementConfig(candidates=64, sigma_deg=(4.0, 1.5))).refine(
+        score, POS, start, None, np.random.default_rng(0))
+    assert geodesic_angle(climbed, TARGET) < 0.5 * geodesic_angle(start, TARGET)
+    np.testing.assert_allclose(best, score(_one(climbed))[0])
+
+
 @pytest.mark.parametrize("bad", [{"candidates": -1}, {"candidates": 2.5}, {"sigma_deg": ()}, {"sigma_deg": (2.0, 0.0)}])
 def test_refinement_config_is_validated(bad):
     with pytest.raises(ValueError):

@@ -209,7 +209,7 @@ def test_variant_parsing_and_configuration():
     assert TrackerConfig.from_variant("C4N2").name == "C4N2"
     for bad in ({"particles": 1}, {"boosted": 0}, {"metric": "sift"}, {"optimiser": "adam"}, {"variant": "C7"},
                 {"depth_prior_sigma": -0.1}, {"depth_prior_floor": 0.0}, {"depth_prior_max_m": 0.0},
-                {"depth_prior_gate": -0.1}, {"covariance_range_fraction": -0.01}):
+                {"depth_prior_gate": -0.1}, {"covariance_range_fraction": -0.01}, {"estimate": "median"}):
         with pytest.raises(ValueError):
             TrackerConfig(**bad)
 
@@ -278,8 +278,8 @@ def test_rotation_refinement_changes_only_the_published_rotation(renderer, frame
     particle's, at the same position; the particles, and so every later frame, stay as without it."""
     off = RotationRefinementConfig()
     on = RotationRefinementConfig(candidates=32, sigma_deg=(3.0, 1.0))
-    _, a = run(renderer, frame, "C4N2", refine=off)
-    b_tracker, b = run(renderer, frame, "C4N2", refine=on)
+    _, a = run(renderer, frame, "C4N2", refine=off, estimate="best")
+    b_tracker, b = run(renderer, frame, "C4N2", refine=on, estimate="best")
     for ra, rb in zip(a, b):
         np.testing.assert_array_equal(ra.position, rb.position)
         np.testing.assert_array_equal(ra.particles.pos, rb.particles.pos)
@@ -289,3 +289,25 @@ def test_rotation_refinement_changes_only_the_published_rotation(renderer, frame
         assert scores[0] >= scores[1]
     assert any(not np.array_equal(ra.quat, rb.quat) for ra, rb in zip(a, b))
     assert b[-1].stage_ms["refinement"] > 0.0
+
+
+def test_mean_estimate_publishes_the_weighted_mean_and_leaves_the_particles_alone(renderer, frame):
+    """``estimate: mean`` publishes the particles' weighted mean pose (rotation refined at the mean
+    position); the particles are those of the thesis's best-particle output, frame after frame."""
+    off = RotationRefinementConfig()
+    _, best = run(renderer, frame, "C4N2", refine=off, estimate="best")
+    _, mean = run(renderer, frame, "C4N2", refine=off, estimate="mean")
+    tracker, refined = run(renderer, frame, "C4N2", refine=RotationRefinementConfig(candidates=32), estimate="mean")
+    for rb, rm, rr in zip(best, mean, refined):
+        np.testing.assert_array_equal(rb.particles.pos, rm.particles.pos)
+        np.testing.assert_array_equal(rb.particles.quat, rm.particles.quat)
+        np.testing.assert_array_equal(rb.position, rb.particles.pos[0])
+        w = rm.particles.weight / rm.particles.weight.sum()
+        np.testing.assert_allclose(rm.position, w @ rm.particles.pos, rtol=1e-12)
+        np.testing.assert_allclose(rm.quat, rm.particles.mean_pose()[1], rtol=1e-12)
+        np.testing.assert_array_equal(rr.position, rm.position)  # the refinement keeps the position
+        scores = tracker._score(ParticleSet.from_poses(np.tile(rm.position, (2, 1)), np.stack([rr.quat, rm.quat])))
+        assert scores[0] >= scores[1]
+    assert any(not np.array_equal(rb.position, rm.position) for rb, rm in zip(best, mean))
+    assert np.linalg.norm(mean[-1].position - TRUE_POS) < 0.5
+    assert np.degrees(geodesic_angle(mean[-1].quat, TRUE_QUAT)) < 12.0

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from ..filters.bingham import scatter
 from ..geometry import quat_canonical
 
 _UNIT_TOL = 1e-6
@@ -116,6 +117,14 @@ class ParticleSet:
         """Effective number of particles (6.5): ``1 / Σ w̃²`` of the normalised weights."""
         w = self.normalised_weights()
         return float(1.0 / np.sum(w * w))
+
+    def mean_pose(self) -> tuple[np.ndarray, np.ndarray]:
+        """Weighted mean position and mean rotation: the mode of the Bingham fitted to the
+        weighted quaternions (C.8)–(C.9), i.e. the principal eigenvector of their scatter matrix
+        (sign-free, so ``q`` and ``−q`` count alike)."""
+        w = self.normalised_weights()
+        quat = np.linalg.eigh(scatter(self.quat, w))[1][:, -1]
+        return w @ self.pos, quat_canonical(quat)
 
     def best_index(self) -> int:
         """Index of the highest weight (the first on ties)."""

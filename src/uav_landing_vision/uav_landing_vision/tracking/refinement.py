@@ -1,12 +1,13 @@
 """Ours (not in the thesis): a rotation-only local search of the published estimate.
 
 The colour metric's peak at the true pose is a few degrees wide, and the PFO's §6.7.1 noise
-(≈ 5° per axis per iteration) rarely lands on it. After the optimisation, the best particle's
-rotation is searched once more: per stage, one batch of candidates drawn about the current
-best rotation with that stage's σ, scored in one call; the best candidate replaces the
-rotation when it scores higher. The position is not searched and nothing is fed back to the
-particles or their filters: with feedback, or with depth in the search, the track drifts to
-too-far depths, where the metric prefers short wings that miss the faint tips (README).
+(≈ 5° per axis per iteration) rarely lands on it. After the optimisation, the published
+estimate's rotation is searched once more at its position: per stage, one batch of candidates
+drawn about the current best rotation with that stage's σ, scored in one call; the best
+candidate replaces the rotation when it scores higher. The position is not searched and
+nothing is fed back to the particles or their filters: with feedback, or with depth in the
+search, the track drifts to too-far depths, where the metric prefers short wings that miss the
+faint tips (README).
 """
 
 from dataclasses import dataclass
@@ -37,19 +38,24 @@ class RotationRefinement:
     def __init__(self, config: RotationRefinementConfig):
         self.config = config
 
-    def refine(self, score: Objective, pos: np.ndarray, quat: np.ndarray, quat_score: float,
-               rng: np.random.Generator) -> tuple[np.ndarray, float]:
-        """The best rotation found at ``pos`` (``quat`` itself unless beaten) and its score."""
+    def refine(self, score: Objective, pos: np.ndarray, quat: np.ndarray, quat_score: float | None,
+               rng: np.random.Generator) -> tuple[np.ndarray, float | None]:
+        """The best rotation found at ``pos`` (``quat`` itself unless beaten) and its score.
+
+        ``quat_score``: the score of ``quat`` at ``pos``, or None when it is unknown (the
+        particles' mean pose): ``quat`` is then scored in the first stage's batch."""
         n = self.config.candidates
-        best, best_score = np.array(quat, dtype=float), float(quat_score)
+        best, best_score = np.array(quat, dtype=float), quat_score
         if n == 0:
             return best, best_score
-        positions = np.tile(np.asarray(pos, float), (n, 1))
         for sigma in self.config.sigma_deg:
             turns = rng.normal(0.0, np.radians(sigma), (n, 3))
-            candidates = ParticleSet.from_poses(positions, rotate_body(np.tile(best, (n, 1)), turns))
+            quats = rotate_body(np.tile(best, (n, 1)), turns)
+            if best_score is None:
+                quats = np.vstack([best[None], quats])
+            candidates = ParticleSet.from_poses(np.tile(np.asarray(pos, float), (len(quats), 1)), quats)
             scores = evaluate(score, candidates)
             k = int(np.argmax(scores))
-            if scores[k] > best_score:
+            if best_score is None or scores[k] > best_score:
                 best, best_score = candidates.quat[k], float(scores[k])
         return best, best_score

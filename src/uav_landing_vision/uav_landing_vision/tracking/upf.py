@@ -18,8 +18,10 @@ Per frame (:meth:`Tracker.step`), with M particles of which M0 = M − boosted a
 4. **Pose optimisation** (§5.5): N iterations of the configured optimiser (PFO by default, with
    the §6.7.1 noise, its translation part scaled by depth / ``pfo.reference_depth_m``: ours).
    Filters are then recentred on the optimised poses.
-5. **Output**: the best particle (§6.7.1.2) with, ours, its rotation refined by a rotation-only
-   local search (:mod:`.refinement`, ``refine.candidates`` > 0; the particles are not changed),
+5. **Output**: the best particle (§6.7.1.2) or, ours (``estimate: mean``), the particles'
+   weighted mean (:meth:`ParticleSet.mean_pose`), with, ours, its rotation refined by a
+   rotation-only local search (:mod:`.refinement`, ``refine.candidates`` > 0; the particles are
+   not changed),
    a 6×6 covariance from the weighted particle cloud (:func:`particle_covariance`) with a
    range-proportional σ added along the line of sight (ours: the cloud's spread alone covers
    too little of the depth error), the track state (:mod:`.track_state`) and per-stage times.
@@ -48,6 +50,7 @@ from .track_state import TrackMonitor, TrackState, TrackStateConfig
 
 ROTATION_FILTER = {"C3": "ukf", "C4": "ubif", "C5": "ubigaf"}  # Table 6.11
 COMBINATIONS = ("C1", "C2", "C3", "C4", "C5")
+ESTIMATES = ("best", "mean")  # published pose: the best particle (thesis) or the weighted mean (ours)
 OPTIMISERS = {"pfo": None, "pso": PSO, "constricted_pso": ConstrictedPSO, "gabf": GAbF}
 _VARIANT = re.compile(r"^C([1-5])N(\d+)$")
 
@@ -88,6 +91,7 @@ class TrackerConfig:
     depth_prior_floor: float = 0.5  # the prior's value far from the boosted depth
     depth_prior_max_m: float = 30.0  # no prior where the boosted depth is beyond this
     depth_prior_gate: float = 0.25  # ours, 0 = off: no prior when z_b is over this fraction off the last depth
+    estimate: str = "mean"  # ours (best = thesis), see yaml
     refine: RotationRefinementConfig = field(
         default_factory=lambda: RotationRefinementConfig(candidates=64, sigma_deg=(3.0,)))  # ours, see yaml
 
@@ -109,6 +113,8 @@ class TrackerConfig:
             raise ValueError("need depth_prior_sigma >= 0, 0 < depth_prior_floor <= 1 and depth_prior_max_m > 0")
         if not self.depth_prior_gate >= 0:
             raise ValueError(f"depth_prior_gate must be non-negative, got {self.depth_prior_gate!r}")
+        if self.estimate not in ESTIMATES:
+            raise ValueError(f"estimate must be one of {ESTIMATES}, got {self.estimate!r}")
         if self.variant in ROTATION_FILTER:
             object.__setattr__(self, "motion", replace(self.motion, rotation_filter=ROTATION_FILTER[self.variant]))
 
@@ -134,7 +140,8 @@ STAGES = ("prepare", "proposal", "measurement", "filtering", "weighting", "resam
 @dataclass(frozen=True)
 class TrackResult:
     """One frame's output. ``position``/``quat``: UAV body in the camera optical frame (NaN when
-    there is no estimate). ``covariance``: 6×6, ROS order (x, y, z, rot_x, rot_y, rot_z); the
+    there is no estimate): the particles' weighted mean or the best particle (``estimate``), its
+    rotation refined. ``covariance``: 6×6, ROS order (x, y, z, rot_x, rot_y, rot_z); the
     rotation part is of the small rotation r with ``q_particle = exp(r) ⊗ q_estimate``, i.e.
     about the camera's fixed axes (as ``PoseWithCovariance`` expects), in rad².
     ``best_likelihood``: the best particle's likelihood (before the rotation refinement); it
@@ -375,7 +382,8 @@ class Tracker:
         return ParticleSet.concat([elite, out.take(keep)])
 
     def _output(self, particles: ParticleSet, stamp_ns: int, clock) -> TrackResult:
-        """Step 5: best particle (rotation refined), covariance, track state; the set is kept best first."""
+        """Step 5: the estimate (mean or best particle, rotation refined), covariance, track state;
+        the set is kept best first."""
         cfg = self.config
         order = np.argsort(-particles.weight, kind="stable")
         particles = particles.take(order)
@@ -393,8 +401,12 @@ class Tracker:
             self.particles = particles.with_weight(np.full(len(particles), 1.0 / len(particles)))
             return self._empty(stamp_ns, clock, best_w)
         self.particles = particles
-        pos = particles.pos[0].copy()
-        quat, _ = self.refinement.refine(self._score, pos, particles.quat[0], particles.weight[0], self._refine_rng)
+        if cfg.estimate == "mean":
+            pos, quat = particles.mean_pose()
+            quat_score = None
+        else:
+            pos, quat, quat_score = particles.pos[0].copy(), particles.quat[0], particles.weight[0]
+        quat, _ = self.refinement.refine(self._score, pos, quat, quat_score, self._refine_rng)
         clock.lap("refinement")
         cov = particle_covariance(particles, pos, quat, cfg.covariance_floor_m, np.radians(cfg.covariance_floor_deg),
                                   cfg.covariance_range_fraction)
