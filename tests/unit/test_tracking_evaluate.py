@@ -1,6 +1,7 @@
 """``uav-landing evaluate`` on a short simulated approach: accuracy, determinism, ROI sources, outputs."""
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -21,6 +22,7 @@ from uav_landing_vision.tracking.evaluate import (
     parse_variants,
     summary,
 )
+from uav_landing_vision.tracking.upf import load_tracker_config
 
 FRAMES = 12
 
@@ -47,11 +49,14 @@ def result(bag):
 def test_oracle_run_is_accurate_and_labelled(bag, result):
     rng = np.linalg.norm(read_poses(bag).trans, axis=1).mean()
     assert result.frames == FRAMES
-    for name in ("C1N0", "C4N2"):
+    # C1N0 publishes the weighted mean of each frame's boosted hypotheses, of scattered depths
+    # (measured 1.09 m / 4.7°); C4N2 that of a tracked cloud (0.19 m / 3.6°)
+    bounds = {"C1N0": (0.075, 30.0), "C4N2": (0.025, 10.0)}
+    for name, (trans_fraction, rot_deg) in bounds.items():
         err = result.errors[name]
         assert np.all(np.isfinite(err["euclidean"]))  # no lost frame
-        assert np.median(err["euclidean"]) < 0.05 * rng
-        assert np.median(err["geodesic"]) < 30.0
+        assert np.median(err["euclidean"]) < trans_fraction * rng
+        assert np.median(err["geodesic"]) < rot_deg
         assert result.ms_per_frame[name] > 0
     doc = summary(result)
     assert "roi_source=oracle" in doc["sequence"]
@@ -69,8 +74,11 @@ def test_same_seed_same_estimates(bag):
 
 def test_start_skips_frames_and_the_tracker_starts_there(bag):
     """--start S --frames N tracks frames S..S+N−1 from a fresh tracker; errors are of those frames."""
-    full = evaluate_bag(bag, ["C1N0"], particles=30, roi_source="oracle", progress=False)
-    part = evaluate_bag(bag, ["C1N0"], particles=30, roi_source="oracle", start=8, frames=10, progress=False)
+    # the best particle's position: the mean of the resampled set depends on the generator's past draws
+    base = replace(load_tracker_config(), estimate="best")
+    full = evaluate_bag(bag, ["C1N0"], particles=30, roi_source="oracle", progress=False, base=base)
+    part = evaluate_bag(bag, ["C1N0"], particles=30, roi_source="oracle", start=8, frames=10, progress=False,
+                        base=base)
     assert part.frames == FRAMES - 8  # clipped to the frames left
     truth = read_poses(bag)
     est = part.estimates["C1N0"][0]
