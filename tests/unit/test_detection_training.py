@@ -94,6 +94,18 @@ def test_matching_and_summary_hand_made():
     assert r["ap50"] == pytest.approx(0.5)
     assert (r["precision"], r["recall"]) == (0.5, 0.5)
     assert r["false_positives_per_100_frames"] == 25.0
+    assert r["best_box_false_positives_per_100_frames"] == 25.0
+    # a second, weaker box beside a matched best one is a false positive, but not one the graph uses
+    frames[0] = {**frames[0], "boxes": np.array([[100.0, 100.0, 120.0, 110.0], [300.0, 300.0, 320.0, 310.0]]),
+                 "scores": np.array([0.9, 0.6])}
+    r = summarise(frames, threshold=0.5)
+    assert r["false_positives_per_100_frames"] == 50.0
+    assert r["best_box_false_positives_per_100_frames"] == 25.0
+    # the best box off the UAV, a weaker one on it: the graph gets the wrong one
+    frames[0] = {**frames[0], "scores": np.array([0.6, 0.9])}
+    r = summarise(frames, threshold=0.5)
+    assert r["false_positives_per_100_frames"] == 50.0
+    assert r["best_box_false_positives_per_100_frames"] == 50.0
     assert r["recall_by_width_px"] == {"8-16": {"recall": 0.0, "count": 1}, "16-32": {"recall": 1.0, "count": 1}}
     assert r["recall_wider_than_16px"] == 1.0 and r["ms_per_frame"] == 11.5
 
