@@ -35,3 +35,13 @@ def test_the_shipped_model_finds_the_uav_in_new_frames(detector):
 
 def test_the_shipped_model_sees_nothing_in_an_empty_sky(detector):
     assert len(detector.detect(sky_and_sea(1280, 720)).scores) == 0
+
+
+def test_the_shipped_model_carries_no_exporter_records():
+    """The shipped file has no per-node debug records (stack traces with the exporting machine's paths)."""
+    import onnx
+
+    from uav_landing_vision.resources import model_path
+
+    model = onnx.load(str(model_path("detector.onnx")))
+    assert not any(node.metadata_props for node in model.graph.node) and not model.graph.metadata_props

@@ -139,6 +139,16 @@ def test_exported_network_matches_torch_and_decodes_alike(exported):
         np.testing.assert_allclose(ns, torch.sigmoid(logits[0]).reshape(-1).numpy(), atol=1e-5)
 
 
+def test_export_drops_the_exporters_debug_records(exported):
+    """No per-node stack traces (they hold the exporting machine's paths); the runtime's props stay."""
+    import onnx
+
+    model = onnx.load(str(exported[1]))
+    assert not any(node.metadata_props for node in model.graph.node)
+    assert not model.graph.metadata_props
+    assert {p.key for p in model.metadata_props} == {"strides", "input_width", "input_height", "description"}
+
+
 def test_runtime_on_the_exported_model(exported):
     _, path = exported
     det = Detector(DetectorConfig(model=str(path), max_detections=5, threads=1))

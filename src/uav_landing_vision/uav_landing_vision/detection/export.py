@@ -3,7 +3,8 @@
 The graph has one input ``images`` (N,3,H,W) float32 RGB in [0,1] with dynamic H and W
 (multiples of 32) and one output per stride (``p8``, ``p16``, ``p32``). Metadata props carry
 what the runtime needs: ``strides``, ``input_width``, ``input_height`` (the full-frame
-letterbox size) and a free-form ``description``.
+letterbox size) and a free-form ``description``. The exporter's debug records (per-node stack
+traces with the exporting machine's file paths, FX node dumps) are dropped.
 """
 
 import json
@@ -31,7 +32,7 @@ def export_onnx(net: torch.nn.Module, path, input_size: tuple[int, int], descrip
         input_names=["images"], output_names=[f"p{s}" for s in STRIDES],
         dynamic_shapes={"x": {2: 32 * h, 3: 32 * w}}, verbose=False,
     )
-    model = onnx.load(str(path))
+    model = strip_debug_metadata(onnx.load(str(path)))
     meta = {"strides": json.dumps(list(STRIDES)), "input_width": str(width), "input_height": str(height),
             "description": description}
     for key, value in meta.items():
@@ -39,3 +40,11 @@ def export_onnx(net: torch.nn.Module, path, input_size: tuple[int, int], descrip
         prop.key, prop.value = key, value
     onnx.save(model, str(path))
     return path
+
+
+def strip_debug_metadata(model):
+    """``model`` (an ``onnx.ModelProto``) without the exporter's per-node and per-graph records."""
+    for node in model.graph.node:
+        del node.metadata_props[:]
+    del model.graph.metadata_props[:]
+    return model
