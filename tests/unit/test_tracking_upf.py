@@ -254,7 +254,7 @@ def test_depth_prior_pulls_depth_to_the_boosted_depth_and_reports_the_likelihood
 
 
 def test_depth_prior_gate_drops_a_boosted_depth_that_jumps_off_the_track(renderer, frame):
-    """With ``depth_prior_gate``, a boosted depth more than that fraction off the last estimate's
+    """With ``depth_prior_gate``, a boosted depth more than that fraction off the last best particle's
     depth sets no prior (scores are the likelihood alone); one within it does. Without a track
     (first frame) the gate does not apply."""
     cfg = TrackerConfig.from_variant("C4N2", particles=40, boosted=10, depth_prior_gate=0.25)

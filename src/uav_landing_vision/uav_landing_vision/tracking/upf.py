@@ -13,7 +13,7 @@ Per frame (:meth:`Tracker.step`), with M particles of which M0 = M − boosted a
 3. **Weighting and resampling** (§5.4): one batched render + score, then the configured
    App. B scheme back to M particles. Ours: every score (weighting, z_t, optimisation) is the
    likelihood times a depth prior about the boosted depth (:func:`depth_prior`) when that depth
-   is within ``depth_prior_max_m`` and within ``depth_prior_gate`` of the last estimate's; the
+   is within ``depth_prior_max_m`` and within ``depth_prior_gate`` of the last best particle's; the
    track state and ``best_likelihood`` use the likelihood alone.
 4. **Pose optimisation** (§5.5): N iterations of the configured optimiser (PFO by default, with
    the §6.7.1 noise, its translation part scaled by depth / ``pfo.reference_depth_m``: ours).
@@ -283,7 +283,7 @@ class Tracker:
     def _boosted_depth(self, new: ParticleSet | None) -> float | None:
         """This frame's anchor z_b of the depth prior: the boosted hypotheses' median depth, or None
         (no prior) beyond ``depth_prior_max_m`` or, with ``depth_prior_gate``, when it disagrees
-        with the last estimate's depth by more than that fraction."""
+        with the last frame's best particle's depth by more than that fraction."""
         cfg = self.config
         if new is None or cfg.depth_prior_sigma <= 0:
             return None
