@@ -107,12 +107,19 @@ class SilhouetteLikelihood(ABC):
 
     def score_batch(self, batch: SilhouetteBatch) -> np.ndarray:
         """Likelihoods ``(M,)`` of an already rendered batch."""
+        return self.score_shifted(batch, np.zeros((1, 2)))[:, 0]
+
+    def score_shifted(self, batch: SilhouetteBatch, shifts) -> np.ndarray:
+        """Likelihoods ``(M, S)`` of an already rendered batch with every silhouette moved in
+        the image by each shift ``(S, 2)`` (frame pixels, x right, y down), the frame sampled
+        there without rendering again. Poses invisible unshifted score 0 at every shift."""
         if not self._prepared:
             raise RuntimeError(f"{type(self).__name__}: call prepare(frame) before scoring")
-        out = np.zeros(len(batch.visible))
+        shifts = np.asarray(shifts, float).reshape(-1, 2)
+        out = np.zeros((len(batch.visible), len(shifts)))
         vis = np.flatnonzero(batch.visible)
         if vis.size:
-            out[vis] = self._score_visible(batch.masks[vis], batch.boxes[vis])
+            out[vis] = self._score_visible_shifted(batch.masks[vis], batch.boxes[vis], shifts)
         return out
 
     def __call__(self, particles) -> np.ndarray:
@@ -126,3 +133,8 @@ class SilhouetteLikelihood(ABC):
     @abstractmethod
     def _score_visible(self, masks: np.ndarray, boxes: np.ndarray) -> np.ndarray:
         """Likelihoods of visible poses from their tiles ``(V,T,T)`` and boxes ``(V,4)``."""
+
+    def _score_visible_shifted(self, masks: np.ndarray, boxes: np.ndarray, shifts: np.ndarray) -> np.ndarray:
+        """``(V, S)`` likelihoods with the silhouettes moved by each shift: by default one
+        :meth:`_score_visible` per shift, on the moved boxes."""
+        return np.stack([self._score_visible(masks, boxes + np.tile(s, 2)) for s in shifts], axis=1)

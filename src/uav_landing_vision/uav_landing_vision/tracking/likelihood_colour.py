@@ -5,7 +5,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .likelihood_base import SilhouetteLikelihood, nearest_pixel, tile_centres
+from .likelihood_base import SilhouetteLikelihood, tile_centres
 
 
 @dataclass(frozen=True)
@@ -101,41 +101,55 @@ class ColourHistogramLikelihood(SilhouetteLikelihood):
         return 3 * self.config.bins_per_channel
 
     def _prepare(self, frame: np.ndarray) -> None:
-        """Bin index of every pixel (row-major) and channel: channel c's bins are c·b … c·b + b − 1."""
+        """Bin of every pixel (row-major) in each channel, channel c's bins being c·b … c·b + b − 1,
+        packed one byte per channel into an int32 (3·b ≤ 255 by the config's check)."""
         width = 256 // self.config.bins_per_channel
-        offsets = np.arange(3, dtype=np.uint8) * np.uint8(self.config.bins_per_channel)
-        self._bins = (frame // np.uint8(width) + offsets).reshape(-1, 3)
+        bins = (frame // np.uint8(width)).reshape(-1, 3).astype(np.int32)
+        b = self.config.bins_per_channel
+        self._bins = bins[:, 0] | (bins[:, 1] + b) << 8 | (bins[:, 2] + 2 * b) << 16
 
-    def _counts(self, masks: np.ndarray, boxes: np.ndarray) -> np.ndarray:
-        """Raw bin counts ``(V, 4, B)`` of V visible tiles, one bincount for all; region
-        ``2·band + inside``: outer, inner, outer in the outline band, inner in the band."""
+    def _counts(self, masks: np.ndarray, boxes: np.ndarray, shifts: np.ndarray) -> np.ndarray:
+        """Raw bin counts ``(V, S, 4, B)`` of V visible tiles, each sampled with its silhouette
+        moved by each of the S image shifts; region ``2·band + inside``: outer, inner, outer in
+        the outline band, inner in the band. Only the pixels of each silhouette's box are
+        gathered; one bincount per channel for all tiles and shifts."""
         v, t, _ = masks.shape
-        xs, ys = tile_centres(boxes, t)
-        rows, cols = nearest_pixel(np.stack([xs, ys], axis=-1), self.width, self.height)
-        ok_x = (xs >= -0.5) & (xs < self.width - 0.5)
-        ok_y = (ys >= -0.5) & (ys < self.height - 0.5)
-        ok = ok_y[:, :, None] & ok_x[:, None, :] & silhouette_box(masks)
-        region = masks.astype(np.intp)
+        s = len(shifts)
+        region = masks.astype(np.int32)
         if self.config.band_px > 0.0:
             region = region + 2 * outline_band(masks, boxes, self.config.band_px)
-        samples = self._bins[rows[:, :, None] * self.width + cols[:, None, :]]  # (V, T, T, 3)
-        dump = 4 * v * self.bins  # keys from here on are dropped
-        base = np.where(ok, (np.arange(v)[:, None, None] * 4 + region) * self.bins, dump)
-        counts = np.bincount((base[..., None] + samples).ravel(), minlength=dump + self.bins)
-        return counts[:dump].reshape(v, 4, self.bins).astype(float)
+        inbox = np.flatnonzero(silhouette_box(masks))
+        owner, rows, cols = inbox // (t * t), inbox // t % t, inbox % t
+        xs, ys = tile_centres(boxes, t)  # frame pixel under each tile column / row, per shift:
+        x = np.floor(xs + shifts[:, :1, None] + 0.5).reshape(s, -1)
+        y = np.floor(ys + shifts[:, 1:, None] + 0.5).reshape(s, -1)
+        x = np.where((x >= 0) & (x < self.width), x, -1).astype(np.int32)[:, owner * t + cols]  # (S, N)
+        y = np.where((y >= 0) & (y < self.height), y, -1).astype(np.int32)[:, owner * t + rows]
+        ok = (x >= 0) & (y >= 0)
+        samples = self._bins[np.where(ok, y * self.width + x, 0)]
+        dump = s * v * 4 * self.bins  # keys from here on are dropped
+        tiles = np.arange(s, dtype=np.int32)[:, None] * v + owner.astype(np.int32)
+        base = np.where(ok, (tiles * 4 + region.reshape(-1)[inbox]) * self.bins, dump)
+        counts = sum(np.bincount((base + (samples >> 8 * c & 0xFF)).ravel(), minlength=dump + self.bins)
+                     for c in range(3))
+        return counts[:dump].reshape(s, v, 4, self.bins).swapaxes(0, 1).astype(float)
 
     def histograms(self, masks: np.ndarray, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Raw inner and outer bin counts ``(V, B)`` of V visible tiles, outline band left out."""
-        counts = self._counts(masks, boxes)
+        counts = self._counts(masks, boxes, np.zeros((1, 2)))[:, 0]
         return counts[:, 1], counts[:, 0]
 
     def _score_visible(self, masks: np.ndarray, boxes: np.ndarray) -> np.ndarray:
-        """(5.14); with an outline band, the mean of (5.14) without the band and with every pixel."""
-        counts = self._counts(masks, boxes)
+        return self._score_visible_shifted(masks, boxes, np.zeros((1, 2)))[:, 0]
+
+    def _score_visible_shifted(self, masks: np.ndarray, boxes: np.ndarray, shifts: np.ndarray) -> np.ndarray:
+        """(5.14) per tile and shift ``(V, S)``; with an outline band, the mean of (5.14) without
+        the band and with every pixel."""
+        counts = self._counts(masks, boxes, shifts).reshape(-1, 4, self.bins)
         d = _similarity(counts[:, 1], counts[:, 0])
         if self.config.band_px > 0.0:
             d = 0.5 * (d + _similarity(counts[:, 1] + counts[:, 3], counts[:, 0] + counts[:, 2]))
-        return d
+        return d.reshape(len(masks), len(shifts))
 
 
 def _similarity(inner: np.ndarray, outer: np.ndarray) -> np.ndarray:
