@@ -1,6 +1,8 @@
 """The UPF tracker (tracking/upf.py) on synthetic frames: proposals, determinism, track states,
 covariance, configuration."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -289,6 +291,27 @@ def test_rotation_refinement_changes_only_the_published_rotation(renderer, frame
         assert scores[0] >= scores[1]
     assert any(not np.array_equal(ra.quat, rb.quat) for ra, rb in zip(a, b))
     assert b[-1].stage_ms["refinement"] > 0.0
+
+
+def test_aligned_refinement_compares_rotations_at_their_best_image_shift(renderer, frame):
+    """With ``refine.align_px`` the refinement's objective is each pose's score at the best of its
+    image shifts: never below the plain score, equal to it without alignment. Only the published
+    rotation changes; positions and particles stay as without the refinement."""
+    off = RotationRefinementConfig()
+    aligned = RotationRefinementConfig(candidates=32, sigma_deg=(3.0, 1.0), align_px=0.5)
+    _, a = run(renderer, frame, "C4N2", refine=off)
+    tracker, b = run(renderer, frame, "C4N2", refine=aligned)
+    plain, _ = run(renderer, frame, "C4N2", refine=replace(aligned, align_px=0.0))
+    for ra, rb in zip(a, b):
+        np.testing.assert_array_equal(ra.position, rb.position)
+        np.testing.assert_array_equal(ra.particles.pos, rb.particles.pos)
+        np.testing.assert_array_equal(ra.particles.quat, rb.particles.quat)
+        both = ParticleSet.from_poses(np.tile(rb.position, (2, 1)), np.stack([rb.quat, ra.quat]))
+        assert tracker._refinement_score(both)[0] >= tracker._refinement_score(both)[1]
+    poses = b[-1].particles
+    assert np.all(tracker._refinement_score(poses) >= tracker._score(poses))
+    assert np.any(tracker._refinement_score(poses) > tracker._score(poses))
+    np.testing.assert_array_equal(plain._refinement_score(poses), plain._score(poses))
 
 
 def test_mean_estimate_publishes_the_weighted_mean_and_leaves_the_particles_alone(renderer, frame):

@@ -20,7 +20,8 @@ Per frame (:meth:`Tracker.step`), with M particles of which M0 = M − boosted a
    Filters are then recentred on the optimised poses.
 5. **Output**: the best particle (§6.7.1.2) or, ours (``estimate: mean``), the particles'
    weighted mean (:meth:`ParticleSet.mean_pose`), with, ours, its rotation refined by a
-   rotation-only local search (:mod:`.refinement`, ``refine.candidates`` > 0; the particles are
+   rotation-only local search (:mod:`.refinement`, ``refine.candidates`` > 0, each candidate
+   scored at its best sub-pixel image shift with ``refine.align_px`` > 0; the particles are
    not changed),
    a 6×6 covariance from the weighted particle cloud (:func:`particle_covariance`) with a
    range-proportional σ added along the line of sight (ours: the cloud's spread alone covers
@@ -93,7 +94,7 @@ class TrackerConfig:
     depth_prior_gate: float = 0.25  # ours, 0 = off: no prior when z_b is over this fraction off the last depth
     estimate: str = "mean"  # ours (best = thesis), see yaml
     refine: RotationRefinementConfig = field(
-        default_factory=lambda: RotationRefinementConfig(candidates=64, sigma_deg=(3.0,)))  # ours, see yaml
+        default_factory=lambda: RotationRefinementConfig(candidates=96, sigma_deg=(4.0, 1.5), align_px=0.5))  # ours
 
     def __post_init__(self):
         if self.variant not in COMBINATIONS:
@@ -306,6 +307,13 @@ class Tracker:
         """The objective of weighting, z_t and optimisation: likelihood × depth prior, one render."""
         return self.likelihood(particles) * self._prior(particles.pos[:, 2])
 
+    def _refinement_score(self, particles: ParticleSet) -> np.ndarray:
+        """The rotation refinement's objective: as :meth:`_score`, the likelihood taken at the best
+        of ``refine.align_px``'s image shifts of each silhouette (one render)."""
+        batch = self.likelihood.renderer.silhouettes(particles.quat, particles.pos)
+        best = self.likelihood.score_shifted(batch, self.config.refine.shifts).max(axis=1)
+        return best * self._prior(particles.pos[:, 2])
+
     # --- Algorithm 3 steps ----------------------------------------------------------------------
 
     def _mix(self, new: ParticleSet | None) -> ParticleSet | None:
@@ -403,10 +411,9 @@ class Tracker:
         self.particles = particles
         if cfg.estimate == "mean":
             pos, quat = particles.mean_pose()
-            quat_score = None
         else:
-            pos, quat, quat_score = particles.pos[0].copy(), particles.quat[0], particles.weight[0]
-        quat, _ = self.refinement.refine(self._score, pos, quat, quat_score, self._refine_rng)
+            pos, quat = particles.pos[0].copy(), particles.quat[0]
+        quat, _ = self.refinement.refine(self._refinement_score, pos, quat, self._refine_rng)
         clock.lap("refinement")
         cov = particle_covariance(particles, pos, quat, cfg.covariance_floor_m, np.radians(cfg.covariance_floor_deg),
                                   cfg.covariance_range_fraction)
