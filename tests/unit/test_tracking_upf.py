@@ -211,7 +211,8 @@ def test_variant_parsing_and_configuration():
     assert TrackerConfig.from_variant("C4N2").name == "C4N2"
     for bad in ({"particles": 1}, {"boosted": 0}, {"metric": "sift"}, {"optimiser": "adam"}, {"variant": "C7"},
                 {"depth_prior_sigma": -0.1}, {"depth_prior_floor": 0.0}, {"depth_prior_max_m": 0.0},
-                {"depth_prior_gate": -0.1}, {"covariance_range_fraction": -0.01}, {"estimate": "median"}):
+                {"depth_prior_gate": -0.1}, {"covariance_range_fraction": -0.01}, {"estimate": "median"},
+                {"rotation_prior_sigma_deg": -1.0}, {"rotation_prior_floor": 0.0}, {"rotation_prior_max_m": 0.0}):
         with pytest.raises(ValueError):
             TrackerConfig(**bad)
 
@@ -259,7 +260,8 @@ def test_depth_prior_gate_drops_a_boosted_depth_that_jumps_off_the_track(rendere
     """With ``depth_prior_gate``, a boosted depth more than that fraction off the last best particle's
     depth sets no prior (scores are the likelihood alone); one within it does. Without a track
     (first frame) the gate does not apply."""
-    cfg = TrackerConfig.from_variant("C4N2", particles=40, boosted=10, depth_prior_gate=0.25)
+    cfg = TrackerConfig.from_variant("C4N2", particles=40, boosted=10, depth_prior_gate=0.25,
+                                     rotation_prior_sigma_deg=0.0)
     tracker = Tracker(cfg, CAMERA, renderer)
     tracker.step(frame, 0, hypotheses(5))
     assert tracker._anchor == pytest.approx(np.median(hypotheses(5).positions[:40, 2]))
@@ -268,20 +270,62 @@ def test_depth_prior_gate_drops_a_boosted_depth_that_jumps_off_the_track(rendere
     near.positions = near.positions * np.array([1.0, 1.0, 0.7 * last / TRUE_POS[2]])  # 30 % nearer
     tracker.step(frame, 1, near)
     assert tracker._anchor is None
-    np.testing.assert_array_equal(tracker._prior(np.array([4.0, 6.0])), 1.0)
+    np.testing.assert_array_equal(tracker._prior(ParticleSet.from_poses([[0, 0, 4.0], [0, 0, 6.0]], [TRUE_QUAT] * 2)), 1.0)
     close = hypotheses(7)
     close.positions = close.positions * np.array([1.0, 1.0, 0.9])  # 10 % nearer: within the gate
     tracker.step(frame, 2, close)
     assert tracker._anchor == pytest.approx(np.median(close.positions[:10, 2]))  # the 10 boosted of a track
 
 
+def test_rotation_prior_against_scipy_angles():
+    from scipy.spatial.transform import Rotation
+
+    from uav_landing_vision.tracking.upf import rotation_prior
+
+    rng = np.random.default_rng(3)
+    anchor = Rotation.random(random_state=4)
+    turns = Rotation.from_rotvec(rng.normal(size=(50, 3)) * 0.3)
+    quats = (turns * anchor).as_quat()
+    quats[::2] *= -1  # q and -q are one rotation
+    sigma, floor = np.radians(8.0), 0.3
+    angle = (turns * anchor * anchor.inv()).magnitude()
+    expected = floor + (1 - floor) * np.exp(-0.5 * (angle / sigma) ** 2)
+    np.testing.assert_allclose(rotation_prior(quats, anchor.as_quat(), sigma, floor), expected, atol=1e-9)
+    assert rotation_prior(anchor.as_quat()[None], anchor.as_quat(), sigma, floor)[0] == pytest.approx(1.0)
+
+
+def test_rotation_prior_anchors_on_the_last_published_rotation_near_the_ship(renderer, frame):
+    """Within ``rotation_prior_max_m`` every score is multiplied by the rotation prior about the
+    last published rotation; best_likelihood stays the likelihood alone; beyond it, or with
+    σ = 0, the tracker is as without it."""
+    cfg = TrackerConfig.from_variant("C4N2", particles=40, boosted=10, rotation_prior_sigma_deg=5.0,
+                                     rotation_prior_floor=0.2, depth_prior_sigma=0.0)
+    tracker = Tracker(cfg, CAMERA, renderer)
+    first = tracker.step(frame, 0, hypotheses(5))
+    np.testing.assert_array_equal(tracker._turn_anchor, first.quat)
+    turned = rotate_body(np.tile(first.quat, (2, 1)), np.array([[0.0, 0.0, 0.0], [np.radians(5.0), 0.0, 0.0]]))
+    prior = tracker._prior(ParticleSet.from_poses(np.tile(first.position, (2, 1)), turned))
+    np.testing.assert_allclose(prior, [1.0, 0.2 + 0.8 * np.exp(-0.5)], rtol=1e-6)
+    second = tracker.step(frame, 1, hypotheses(6))
+    alone = tracker.likelihood.score(second.particles.quat[:1], second.particles.pos[:1])[0]
+    np.testing.assert_allclose(second.best_likelihood, alone)
+    _, off = run(renderer, frame, "C4N2", rotation_prior_sigma_deg=0.0)
+    _, far = run(renderer, frame, "C4N2", rotation_prior_sigma_deg=5.0, rotation_prior_max_m=5.0)
+    for a, b in zip(off, far):
+        np.testing.assert_array_equal(a.position, b.position)
+        np.testing.assert_array_equal(a.quat, b.quat)
+    tracker.reset()
+    assert tracker._turn_anchor is None
+
+
 def test_rotation_refinement_changes_only_the_published_rotation(renderer, frame):
     """The refinement turns the published rotation to one that scores at least as well as the best
-    particle's, at the same position; the particles, and so every later frame, stay as without it."""
+    particle's, at the same position; the particles, and so every later frame, stay as without it
+    (without the rotation prior, whose anchor is the published rotation)."""
     off = RotationRefinementConfig()
     on = RotationRefinementConfig(candidates=32, sigma_deg=(3.0, 1.0))
-    _, a = run(renderer, frame, "C4N2", refine=off, estimate="best")
-    b_tracker, b = run(renderer, frame, "C4N2", refine=on, estimate="best")
+    _, a = run(renderer, frame, "C4N2", rotation_prior_sigma_deg=0.0, refine=off, estimate="best")
+    b_tracker, b = run(renderer, frame, "C4N2", rotation_prior_sigma_deg=0.0, refine=on, estimate="best")
     for ra, rb in zip(a, b):
         np.testing.assert_array_equal(ra.position, rb.position)
         np.testing.assert_array_equal(ra.particles.pos, rb.particles.pos)
@@ -296,12 +340,12 @@ def test_rotation_refinement_changes_only_the_published_rotation(renderer, frame
 def test_aligned_refinement_compares_rotations_at_their_best_image_shift(renderer, frame):
     """With ``refine.align_px`` the refinement's objective is each pose's score at the best of its
     image shifts: never below the plain score, equal to it without alignment. Only the published
-    rotation changes; positions and particles stay as without the refinement."""
+    rotation changes; positions and particles stay as without the refinement (no rotation prior)."""
     off = RotationRefinementConfig()
     aligned = RotationRefinementConfig(candidates=32, sigma_deg=(3.0, 1.0), align_px=0.5)
-    _, a = run(renderer, frame, "C4N2", refine=off)
-    tracker, b = run(renderer, frame, "C4N2", refine=aligned)
-    plain, _ = run(renderer, frame, "C4N2", refine=replace(aligned, align_px=0.0))
+    _, a = run(renderer, frame, "C4N2", rotation_prior_sigma_deg=0.0, refine=off)
+    tracker, b = run(renderer, frame, "C4N2", rotation_prior_sigma_deg=0.0, refine=aligned)
+    plain, _ = run(renderer, frame, "C4N2", rotation_prior_sigma_deg=0.0, refine=replace(aligned, align_px=0.0))
     for ra, rb in zip(a, b):
         np.testing.assert_array_equal(ra.position, rb.position)
         np.testing.assert_array_equal(ra.particles.pos, rb.particles.pos)
@@ -316,11 +360,12 @@ def test_aligned_refinement_compares_rotations_at_their_best_image_shift(rendere
 
 def test_mean_estimate_publishes_the_weighted_mean_and_leaves_the_particles_alone(renderer, frame):
     """``estimate: mean`` publishes the particles' weighted mean pose (rotation refined at the mean
-    position); the particles are those of the thesis's best-particle output, frame after frame."""
+    position); the particles are those of the thesis's best-particle output, frame after frame
+    (without the rotation prior, which anchors on the published rotation)."""
     off = RotationRefinementConfig()
-    _, best = run(renderer, frame, "C4N2", refine=off, estimate="best")
-    _, mean = run(renderer, frame, "C4N2", refine=off, estimate="mean")
-    tracker, refined = run(renderer, frame, "C4N2", refine=RotationRefinementConfig(candidates=32), estimate="mean")
+    _, best = run(renderer, frame, "C4N2", rotation_prior_sigma_deg=0.0, refine=off, estimate="best")
+    _, mean = run(renderer, frame, "C4N2", rotation_prior_sigma_deg=0.0, refine=off, estimate="mean")
+    tracker, refined = run(renderer, frame, "C4N2", rotation_prior_sigma_deg=0.0, refine=RotationRefinementConfig(candidates=32), estimate="mean")
     for rb, rm, rr in zip(best, mean, refined):
         np.testing.assert_array_equal(rb.particles.pos, rm.particles.pos)
         np.testing.assert_array_equal(rb.particles.quat, rm.particles.quat)
