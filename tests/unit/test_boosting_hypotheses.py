@@ -104,6 +104,11 @@ def test_generator_counts_and_errors(camera):
     # a ROI tight on the dark box is grown before its corners are taken: the same box either way
     tight = gen.generate(frame, (500, 300, 200, 40), count=1).obb
     assert (tight.w, tight.h) == pytest.approx((gen.generate(frame, roi, count=1).obb.w, 40.0), abs=2.0)
+    # a box spanning under min_roi_cover (0.6) of the ROI's longer side is part of the UAV only: no hypotheses
+    wide = (400, 250, 400, 140)  # the 200 px box spans half of it
+    assert gen.generate(frame, wide) is None
+    thesis = PoseHypothesisGenerator(db, camera, HypothesisConfig(particles=40, kept=30, min_roi_cover=0.0))
+    assert len(thesis.generate(frame, wide)) == 10
     bare = PoseHypothesisGenerator(db, camera, HypothesisConfig(particles=40, kept=30, roi_margin=0.0, roi_pad_px=0.0))
     assert bare.generate(frame, (500, 300, 200, 40), count=1) is None  # ungrown: no corner in reach
     with pytest.raises(ValueError, match="camera is"):
@@ -115,7 +120,7 @@ def test_generator_counts_and_errors(camera):
 
 @pytest.mark.parametrize("kwargs", [{"particles": 0, "kept": 0}, {"particles": 10, "kept": 10},
                                     {"kept": -1}, {"aspect_weight": 0.0}, {"roi_margin": -0.1},
-                                    {"roi_pad_px": -1.0}])
+                                    {"roi_pad_px": -1.0}, {"min_roi_cover": -0.1}, {"min_roi_cover": 1.5}])
 def test_hypothesis_config_validation(kwargs):
     with pytest.raises(ValueError):
         HypothesisConfig(**kwargs)
