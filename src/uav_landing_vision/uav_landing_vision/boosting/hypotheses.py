@@ -30,7 +30,7 @@ class HypothesisConfig:
     ``min_roi_cover`` (ours; 0 = thesis): no hypotheses when the box's long side spans less than
     this fraction of the ROI's longer side. Such a box holds only part of the UAV (the fuselage
     of a near UAV whose wings give no corners, or a far UAV's brightest spot), and its depth
-    (4.5) is off by 34–750 % on the simulated landings, against 3–34 % for the other boxes.
+    (4.5) is off by 34–746 % on the simulated landings, against 3–34 % for the other boxes.
     """
 
     particles: int = 100
