@@ -43,7 +43,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..filters.motion import MotionFilterConfig
-from ..geometry import omega_quat, quat_multiply, quat_normalise
+from ..geometry import geodesic_angle, omega_quat, quat_multiply, quat_normalise
 from .likelihood import LIKELIHOODS, ColourConfig, make_likelihood
 from .motion_bank import MotionBank
 from .optimisation import PFO, PSO, ConstrictedPSO, GAbF, PFOConfig, evaluate
@@ -209,8 +209,7 @@ def rotation_prior(quats: np.ndarray, anchor: np.ndarray, sigma_rad: float, floo
     angle θ to the anchor (the last frame's published rotation), ``q`` and ``−q`` alike. A landing
     aircraft turns by a few degrees between frames; near the ship the colour metric scores turned
     silhouettes close to the true one, and without a prior the particles can walk 10° a frame."""
-    dots = np.abs(np.asarray(quats, float) @ np.asarray(anchor, float))
-    u = 2.0 * np.arccos(np.clip(dots, 0.0, 1.0)) / sigma_rad
+    u = geodesic_angle(quats, anchor) / sigma_rad
     return floor + (1.0 - floor) * np.exp(-0.5 * u * u)
 
 
