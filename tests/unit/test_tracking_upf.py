@@ -24,6 +24,7 @@ from uav_landing_vision.tracking.upf import (
     load_tracker_config,
     parse_variant,
     particle_covariance,
+    range_fraction,
 )
 
 CAMERA = CameraModel(320, 240, [[280.0, 0, 160.0], [0, 280.0, 120.0], [0, 0, 1]])
@@ -174,13 +175,31 @@ def test_tracker_covariance_is_psd_and_floored(renderer, frame):
     assert line_of_sight @ cov[:3, :3] @ line_of_sight >= (0.05 * np.linalg.norm(pos)) ** 2
 
 
-def test_range_fraction_adds_variance_along_the_line_of_sight_only(renderer, frame):
-    _, without = run(renderer, frame, "C4N2", covariance_range_fraction=0.0)
-    _, with_ = run(renderer, frame, "C4N2", covariance_range_fraction=0.1)
+@pytest.mark.parametrize("bounds, used", [((15.0, 60.0), 0), ((3.0, 60.0), 1), ((1.0, 3.0), 2)])
+def test_range_fraction_adds_variance_along_the_line_of_sight_only(renderer, frame, bounds, used):
+    fractions = (0.1, 0.2, 0.3)
+    _, without = run(renderer, frame, "C4N2", covariance_range_fraction=(0.0, 0.0, 0.0),
+                     covariance_range_bounds_m=bounds)
+    _, with_ = run(renderer, frame, "C4N2", covariance_range_fraction=fractions, covariance_range_bounds_m=bounds)
     a, b = without[-1], with_[-1]
+    assert 3.0 < a.position[2] < 15.0  # the estimate's depth picks the band
     np.testing.assert_array_equal(a.position, b.position)  # the estimate does not change
-    np.testing.assert_allclose(b.covariance[:3, :3] - a.covariance[:3, :3], 0.01 * np.outer(a.position, a.position))
+    np.testing.assert_allclose(b.covariance[:3, :3] - a.covariance[:3, :3],
+                               fractions[used] ** 2 * np.outer(a.position, a.position))
     np.testing.assert_array_equal(b.covariance[3:, :], a.covariance[3:, :])
+
+
+def test_range_fraction_bands():
+    fractions, bounds = (0.125, 0.05, 0.075), (15.0, 60.0)
+    depths = [0.5, 14.9, 15.0, 15.1, 60.0, 60.1, 500.0]
+    assert [range_fraction(z, fractions, bounds) for z in depths] == [0.125] * 3 + [0.05] * 2 + [0.075] * 2
+    assert range_fraction(80.0, (0.05,), ()) == 0.05  # one fraction for every depth
+    for bad in ({"covariance_range_fraction": (0.1, 0.05)},  # one too few for two bounds
+                {"covariance_range_fraction": (0.1,), "covariance_range_bounds_m": (15.0,)},
+                {"covariance_range_bounds_m": (60.0, 15.0)}, {"covariance_range_bounds_m": (0.0, 15.0)},
+                {"covariance_range_fraction": (0.1, -0.01, 0.1)}):
+        with pytest.raises(ValueError):
+            TrackerConfig(**bad)
 
 
 @pytest.mark.parametrize("kind", ["ukf", "ubif", "ubigaf"])
@@ -211,7 +230,7 @@ def test_variant_parsing_and_configuration():
     assert TrackerConfig.from_variant("C4N2").name == "C4N2"
     for bad in ({"particles": 1}, {"boosted": 0}, {"metric": "sift"}, {"optimiser": "adam"}, {"variant": "C7"},
                 {"depth_prior_sigma": -0.1}, {"depth_prior_floor": 0.0}, {"depth_prior_max_m": 0.0},
-                {"depth_prior_gate": -0.1}, {"covariance_range_fraction": -0.01}, {"estimate": "median"},
+                {"depth_prior_gate": -0.1}, {"estimate": "median"},
                 {"rotation_prior_sigma_deg": -1.0}, {"rotation_prior_floor": 0.0}, {"rotation_prior_max_m": 0.0}):
         with pytest.raises(ValueError):
             TrackerConfig(**bad)

@@ -27,8 +27,9 @@ Per frame (:meth:`Tracker.step`), with M particles of which M0 = M − boosted a
    not changed, but within ``rotation_prior_max_m`` the published rotation anchors the next
    frame's rotation prior),
    a 6×6 covariance from the weighted particle cloud (:func:`particle_covariance`) with a
-   range-proportional σ added along the line of sight (ours: the cloud's spread alone covers
-   too little of the depth error), the track state (:mod:`.track_state`) and per-stage times.
+   range-proportional σ added along the line of sight, its fraction of the range set per depth
+   band (ours: the cloud's spread alone covers too little of the depth error, and least near the
+   ship and far out), the track state (:mod:`.track_state`) and per-stage times.
 
 Everything is batched over particles; each likelihood evaluation is one ``Renderer.silhouettes``
 call. Random draws come from a Generator seeded by ``TrackerConfig.seed``; the refinement has its
@@ -90,7 +91,10 @@ class TrackerConfig:
     track: TrackStateConfig = field(default_factory=TrackStateConfig)
     covariance_floor_m: float = 0.05  # σ added to each translation variance
     covariance_floor_deg: float = 1.0  # σ added to each rotation variance
-    covariance_range_fraction: float = 0.05  # ours: σ of this fraction of the range added along the line of sight
+    # ours: σ of this fraction of the range added along the line of sight, one fraction per depth band
+    # of the estimate, the bands split at covariance_range_bounds_m (see yaml)
+    covariance_range_fraction: tuple[float, ...] = (0.125, 0.05, 0.075)
+    covariance_range_bounds_m: tuple[float, ...] = (15.0, 60.0)
     depth_prior_sigma: float = 0.20  # ours, 0 = thesis: relative σ of the boosted-depth prior (depth_prior)
     depth_prior_floor: float = 0.5  # the prior's value far from the boosted depth
     depth_prior_max_m: float = 30.0  # no prior where the boosted depth is beyond this
@@ -113,9 +117,15 @@ class TrackerConfig:
             raise ValueError(f"resampling must be one of {sorted(RESAMPLERS)}, got {self.resampling!r}")
         if self.optimiser not in OPTIMISERS:
             raise ValueError(f"optimiser must be one of {sorted(OPTIMISERS)}, got {self.optimiser!r}")
-        floors = (self.covariance_floor_m, self.covariance_floor_deg, self.covariance_range_fraction)
+        floors = (self.covariance_floor_m, self.covariance_floor_deg, *self.covariance_range_fraction)
         if self.tile < 16 or not all(f >= 0 for f in floors):
-            raise ValueError("need tile >= 16 and non-negative covariance floors")
+            raise ValueError("need tile >= 16 and non-negative covariance floors and range fractions")
+        bounds = np.asarray(self.covariance_range_bounds_m, float)
+        if len(self.covariance_range_fraction) != len(bounds) + 1 or not (np.all(bounds > 0)
+                                                                           and np.all(np.diff(bounds) > 0)):
+            raise ValueError("covariance_range_bounds_m must be increasing positive depths, one fewer than the "
+                             f"covariance_range_fraction values; got {self.covariance_range_bounds_m!r} and "
+                             f"{self.covariance_range_fraction!r}")
         if not (self.depth_prior_sigma >= 0 and 0 < self.depth_prior_floor <= 1 and self.depth_prior_max_m > 0):
             raise ValueError("need depth_prior_sigma >= 0, 0 < depth_prior_floor <= 1 and depth_prior_max_m > 0")
         if not (self.rotation_prior_sigma_deg >= 0 and 0 < self.rotation_prior_floor <= 1
@@ -211,6 +221,13 @@ def rotation_prior(quats: np.ndarray, anchor: np.ndarray, sigma_rad: float, floo
     silhouettes close to the true one, and without a prior the particles can walk 10° a frame."""
     u = geodesic_angle(quats, anchor) / sigma_rad
     return floor + (1.0 - floor) * np.exp(-0.5 * u * u)
+
+
+def range_fraction(depth: float, fractions, bounds_m) -> float:
+    """Ours: the line-of-sight σ of :func:`particle_covariance` as a fraction of the range, for an
+    estimate at ``depth``: ``fractions[i]`` for the i-th band of depths split at ``bounds_m``
+    (a depth on a bound belongs to the nearer band)."""
+    return float(fractions[int(np.searchsorted(bounds_m, depth, side="left"))])
 
 
 def particle_covariance(particles: ParticleSet, pos: np.ndarray, quat: np.ndarray,
@@ -442,8 +459,9 @@ class Tracker:
         clock.lap("refinement")
         near = cfg.rotation_prior_sigma_deg > 0 and pos[2] <= cfg.rotation_prior_max_m
         self._turn_anchor = quat.copy() if near else None
+        fraction = range_fraction(pos[2], cfg.covariance_range_fraction, cfg.covariance_range_bounds_m)
         cov = particle_covariance(particles, pos, quat, cfg.covariance_floor_m, np.radians(cfg.covariance_floor_deg),
-                                  cfg.covariance_range_fraction)
+                                  fraction)
         n_eff = particles.effective_size()
         clock.lap("output")
         return TrackResult(stamp_ns, state, pos, quat, cov, best_w, n_eff, clock.ms, particles)
