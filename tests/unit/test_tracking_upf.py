@@ -24,7 +24,7 @@ from uav_landing_vision.tracking.upf import (
     load_tracker_config,
     parse_variant,
     particle_covariance,
-    range_fraction,
+    line_of_sight_fraction,
 )
 
 CAMERA = CameraModel(320, 240, [[280.0, 0, 160.0], [0, 280.0, 120.0], [0, 0, 1]])
@@ -189,11 +189,12 @@ def test_range_fraction_adds_variance_along_the_line_of_sight_only(renderer, fra
     np.testing.assert_array_equal(b.covariance[3:, :], a.covariance[3:, :])
 
 
-def test_range_fraction_bands():
+def test_line_of_sight_fraction_bands():
     fractions, bounds = (0.125, 0.05, 0.075), (15.0, 60.0)
     depths = [0.5, 14.9, 15.0, 15.1, 60.0, 60.1, 500.0]
-    assert [range_fraction(z, fractions, bounds) for z in depths] == [0.125] * 3 + [0.05] * 2 + [0.075] * 2
-    assert range_fraction(80.0, (0.05,), ()) == 0.05  # one fraction for every depth
+    assert [line_of_sight_fraction(z, fractions, bounds) for z in depths] == [0.125] * 3 + [0.05] * 2 + [0.075] * 2
+    assert line_of_sight_fraction(80.0, (0.05,), ()) == 0.05  # one fraction for every depth
+    TrackerConfig(covariance_range_fraction=(0.05,), covariance_range_bounds_m=())
     for bad in ({"covariance_range_fraction": (0.1, 0.05)},  # one too few for two bounds
                 {"covariance_range_fraction": (0.1,), "covariance_range_bounds_m": (15.0,)},
                 {"covariance_range_bounds_m": (60.0, 15.0)}, {"covariance_range_bounds_m": (0.0, 15.0)},

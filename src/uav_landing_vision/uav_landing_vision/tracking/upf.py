@@ -223,7 +223,7 @@ def rotation_prior(quats: np.ndarray, anchor: np.ndarray, sigma_rad: float, floo
     return floor + (1.0 - floor) * np.exp(-0.5 * u * u)
 
 
-def range_fraction(depth: float, fractions, bounds_m) -> float:
+def line_of_sight_fraction(depth: float, fractions, bounds_m) -> float:
     """Ours: the line-of-sight σ of :func:`particle_covariance` as a fraction of the range, for an
     estimate at ``depth``: ``fractions[i]`` for the i-th band of depths split at ``bounds_m``
     (a depth on a bound belongs to the nearer band)."""
@@ -459,7 +459,7 @@ class Tracker:
         clock.lap("refinement")
         near = cfg.rotation_prior_sigma_deg > 0 and pos[2] <= cfg.rotation_prior_max_m
         self._turn_anchor = quat.copy() if near else None
-        fraction = range_fraction(pos[2], cfg.covariance_range_fraction, cfg.covariance_range_bounds_m)
+        fraction = line_of_sight_fraction(pos[2], cfg.covariance_range_fraction, cfg.covariance_range_bounds_m)
         cov = particle_covariance(particles, pos, quat, cfg.covariance_floor_m, np.radians(cfg.covariance_floor_deg),
                                   fraction)
         n_eff = particles.effective_size()
