@@ -63,6 +63,11 @@ def test_oracle_run_is_accurate_and_labelled(bag, result):
     assert doc["variants"]["C4N2"]["lost_frames_pct"] == 0.0
     text = format_results(result)
     assert "roi_source=oracle" in text.splitlines()[0] and "Median" in text and "optimisation" in text
+    cov = result.covariances["C4N2"]
+    assert cov.shape == (FRAMES, 6, 6) and np.all(np.isfinite(cov))
+    np.testing.assert_array_equal(result.truth[0], read_poses(bag).trans[:FRAMES])
+    coverage = text.split("95 % region")[1].splitlines()
+    assert coverage[-1].split()[0] == "all" and f"/{FRAMES} |" in coverage[-1]
 
 
 def test_same_seed_same_estimates(bag):

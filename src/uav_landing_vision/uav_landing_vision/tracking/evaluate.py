@@ -92,6 +92,8 @@ class EvaluationResult:
     frames: int
     estimates: dict  # variant -> (trans (F,3), quat (F,4)), NaN where lost
     errors: dict  # variant -> pose_errors(...)
+    truth: tuple  # (trans (F,3), quat (F,4)) of the frames
+    covariances: dict  # variant -> (F,6,6) published covariances, NaN where lost
     stage_ms: dict  # variant -> {stage: mean ms}, shared stages included
     ms_per_frame: dict  # variant -> mean ms of boosting + tracker step
     states: dict  # variant -> (F,) TrackState values
@@ -136,6 +138,7 @@ def evaluate_bag(bag, variants, *, particles: int = 100, metric: str = "colour",
 
     est_t = {n: np.full((count, 3), np.nan) for n in names}
     est_q = {n: np.full((count, 4), np.nan) for n in names}
+    est_cov = {n: np.full((count, 6, 6), np.nan) for n in names}
     states = {n: np.zeros(count, int) for n in names}
     ms = {n: {s: 0.0 for s in SHARED_STAGES + STAGES} for n in names}
     gt_t, gt_q = np.full((count, 3), np.nan), np.full((count, 4), np.nan)
@@ -156,7 +159,7 @@ def evaluate_bag(bag, variants, *, particles: int = 100, metric: str = "colour",
         for n, tracker in trackers.items():
             res = tracker.step(frame, int(stamp), hyp)
             if res.has_pose and res.state != TrackState.LOST:
-                est_t[n][k], est_q[n][k] = res.position, res.quat
+                est_t[n][k], est_q[n][k], est_cov[n][k] = res.position, res.quat, res.covariance
             states[n][k] = int(res.state)
             for s, v in shared.items():
                 ms[n][s] += 1e3 * v
@@ -170,7 +173,8 @@ def evaluate_bag(bag, variants, *, particles: int = 100, metric: str = "colour",
     stage_ms = {n: {s: v / done for s, v in ms[n].items()} for n in names}
     per_frame = {n: stage_ms[n]["boosting"] + sum(stage_ms[n][s] for s in STAGES) for n in names}
     return EvaluationResult(bag.name, roi_source, done, {n: (est_t[n][sl], est_q[n][sl]) for n in names},
-                            errors, stage_ms, per_frame, {n: states[n][sl] for n in names})
+                            errors, (gt_t[sl], gt_q[sl]), {n: est_cov[n][sl] for n in names}, stage_ms, per_frame,
+                            {n: states[n][sl] for n in names})
 
 
 def _frames(iterator, start: int, count: int, progress: bool):
@@ -196,7 +200,8 @@ def summary(result: EvaluationResult) -> dict:
 
 def format_results(result: EvaluationResult) -> str:
     """Thesis-format tables (as Tables 6.12–6.22: Euclidean translation in m, geodesic rotation
-    in deg, one column per variant), then lost frames and ms per frame by stage."""
+    in deg, one column per variant), then lost frames and ms per frame by stage, then (ours) how
+    many errors lie inside the published covariance's 95 % region, by true depth."""
     from ..evaluation import format_table, statistics_table
 
     label = sequence_label(result)
@@ -212,4 +217,23 @@ def format_results(result: EvaluationResult) -> str:
         rows.append(f"{stage:<16}" + "".join(f"{result.stage_ms[n][stage]:>{width}.1f}" for n in names))
     rows.append(f"{'ms/frame':<16}" + "".join(f"{result.ms_per_frame[n]:>{width}.1f}" for n in names))
     parts.append("\n".join(rows))
+    parts.append(format_coverage(result, head))
     return "\n\n".join(parts)
+
+
+def format_coverage(result: EvaluationResult, head: str) -> str:
+    """Per variant and bin of true depth: frames whose position / rotation error lies inside the
+    published covariance's 95 % region, of the frames with an estimate."""
+    from ..evaluation.consistency import coverage_by_depth
+
+    names = list(result.errors)
+    table = {n: coverage_by_depth(*result.truth, *result.estimates[n], result.covariances[n]) for n in names}
+    width = max(24, *(len(n) + 2 for n in names))
+    rows = [f"{head}: errors inside the published covariance's 95 % region (position | rotation)",
+            f"{'true depth':<16}" + "".join(f"{n:>{width}}" for n in names)]
+    for i, row in enumerate(table[names[0]]):
+        lo, hi = row["depth_m"] or (None, None)
+        label = "all" if lo is None else f"{lo:g}+ m" if np.isinf(hi) else f"{lo:g}-{hi:g} m"
+        cells = (f"{c['position']}/{c['frames']} | {c['rotation']}/{c['frames']}" for c in (table[n][i] for n in names))
+        rows.append(f"{label:<16}" + "".join(f"{c:>{width}}" for c in cells))
+    return "\n".join(rows)

@@ -1,0 +1,61 @@
+"""Does a published pose covariance hold the errors it claims? (Ours: the thesis publishes no covariance.)
+
+A frame's error lies inside the covariance's ``level`` region when its squared Mahalanobis
+distance (the NEES) is at most the χ² quantile with 3 degrees of freedom, for the position and
+for the rotation separately. The rotation error is the small rotation ``r`` with
+``q_true = exp(r) ⊗ q_est``, about the camera's axes, as in the tracker's covariance.
+"""
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
+
+DEPTH_BINS_M = (0.0, 8.0, 15.0, 30.0, 60.0, np.inf)
+
+
+def error_vectors(t_true, q_true, t_est, q_est) -> np.ndarray:
+    """``(F, 6)``: position error t̂ − t and rotation error log(q_true ⊗ q̂⁻¹) per frame, in the
+    order of a ROS pose covariance; NaN rows where there is no estimate."""
+    t_true, t_est = np.asarray(t_true, float), np.asarray(t_est, float)
+    q_true, q_est = np.asarray(q_true, float), np.asarray(q_est, float)
+    out = np.full((len(t_true), 6), np.nan)
+    ok = np.all(np.isfinite(t_est), axis=1) & np.all(np.isfinite(q_est), axis=1)
+    if np.any(ok):
+        out[ok, :3] = t_est[ok] - t_true[ok]
+        out[ok, 3:] = (Rotation.from_quat(q_true[ok]) * Rotation.from_quat(q_est[ok]).inv()).as_rotvec()
+    return out
+
+
+def nees(errors: np.ndarray, covariances: np.ndarray) -> np.ndarray:
+    """``(F,)`` squared Mahalanobis distances ``eᵀ C⁻¹ e`` of ``(F, k)`` errors under ``(F, k, k)``
+    covariances; NaN where the error or the covariance is not finite."""
+    e, c = np.asarray(errors, float), np.asarray(covariances, float)
+    out = np.full(len(e), np.nan)
+    ok = np.all(np.isfinite(e), axis=1) & np.all(np.isfinite(c), axis=(1, 2))
+    if np.any(ok):
+        out[ok] = np.einsum("fi,fi->f", e[ok], np.linalg.solve(c[ok], e[ok][..., None])[..., 0])
+    return out
+
+
+def coverage_by_depth(t_true, q_true, t_est, q_est, covariances, bins=DEPTH_BINS_M, level: float = 0.95) -> list[dict]:
+    """Per bin of true depth (``bins``: edges in m) and for all frames: ``frames`` with an
+    estimate, and how many of them have their ``position`` and ``rotation`` error inside the
+    covariance's ``level`` region."""
+    if not 0.0 < level < 1.0:
+        raise ValueError(f"level must be in (0, 1), got {level}")
+    cov = np.asarray(covariances, float)
+    if cov.shape != (len(t_true), 6, 6):
+        raise ValueError(f"need one 6x6 covariance per frame, got shape {cov.shape}")
+    err = error_vectors(t_true, q_true, t_est, q_est)
+    limit = chi2.ppf(level, 3)
+    inside_pos = nees(err[:, :3], cov[:, :3, :3]) <= limit
+    inside_rot = nees(err[:, 3:], cov[:, 3:, 3:]) <= limit
+    posed = np.all(np.isfinite(err), axis=1) & np.all(np.isfinite(cov), axis=(1, 2))
+    depth = np.asarray(t_true, float)[:, 2]
+    edges = list(zip(bins[:-1], bins[1:])) + [(None, None)]
+    rows = []
+    for lo, hi in edges:
+        sel = posed if lo is None else posed & (depth >= lo) & (depth < hi)
+        rows.append({"depth_m": None if lo is None else (float(lo), float(hi)), "frames": int(sel.sum()),
+                     "position": int((inside_pos & sel).sum()), "rotation": int((inside_rot & sel).sum())})
+    return rows

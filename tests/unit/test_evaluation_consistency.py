@@ -1,0 +1,60 @@
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from uav_landing_vision.evaluation.consistency import coverage_by_depth, error_vectors, nees
+
+
+def test_error_vectors_are_position_difference_and_rotation_about_camera_axes():
+    q_est = Rotation.from_euler("xyz", [10, -20, 30], degrees=True)
+    turn = np.array([0.02, -0.05, 0.1])
+    q_true = Rotation.from_rotvec(turn) * q_est  # q_true = exp(r) ⊗ q_est
+    t_true = np.array([[1.0, 2.0, 30.0], [0.0, 0.0, 10.0]])
+    t_est = np.array([[1.5, 1.0, 33.0], [np.nan] * 3])
+    q = np.vstack([q_est.as_quat(), [np.nan] * 4])
+    err = error_vectors(t_true, np.vstack([q_true.as_quat()] * 2), t_est, q)
+    np.testing.assert_allclose(err[0], [0.5, -1.0, 3.0, *turn], atol=1e-12)
+    assert np.all(np.isnan(err[1]))  # no estimate
+    err_flipped = error_vectors(t_true[:1], -q_true.as_quat()[None], t_est[:1], q[:1])  # q and -q alike
+    np.testing.assert_allclose(err_flipped[0, 3:], turn, atol=1e-12)
+
+
+def test_nees_matches_the_hand_computed_distance():
+    cov = np.diag([4.0, 1.0, 0.25])
+    e = np.array([[2.0, 1.0, 0.5], [np.nan, 0.0, 0.0]])
+    out = nees(e, np.stack([cov, cov]))
+    assert out[0] == pytest.approx(1.0 + 1.0 + 1.0) and np.isnan(out[1])
+
+
+def test_errors_drawn_from_the_covariance_are_inside_its_95_percent_region_95_percent_of_the_time():
+    rng = np.random.default_rng(5)
+    n = 4000
+    a = rng.normal(size=(6, 6))
+    cov = a @ a.T * 1e-3 + np.diag([0.1, 0.1, 0.5, 1e-3, 1e-3, 1e-3])
+    cov[:3, 3:] = cov[3:, :3] = 0.0
+    e = rng.multivariate_normal(np.zeros(6), cov, size=n)
+    t_true = np.column_stack([np.zeros((n, 2)), rng.uniform(1.0, 100.0, n)])
+    q_est = Rotation.random(n, random_state=6)
+    q_true = Rotation.from_rotvec(e[:, 3:]) * q_est
+    rows = coverage_by_depth(t_true, q_true.as_quat(), t_true + e[:, :3], q_est.as_quat(), np.tile(cov, (n, 1, 1)))
+    total = rows[-1]
+    assert rows[-1]["depth_m"] is None and total["frames"] == n == sum(r["frames"] for r in rows[:-1])
+    assert abs(total["position"] / n - 0.95) < 0.015 and abs(total["rotation"] / n - 0.95) < 0.015
+    small = coverage_by_depth(t_true, q_true.as_quat(), t_true + e[:, :3], q_est.as_quat(),
+                              np.tile(cov / 4.0, (n, 1, 1)))[-1]
+    assert small["position"] / n < 0.75 and small["rotation"] / n < 0.75  # an over-confident covariance shows
+
+
+def test_coverage_bins_skip_lost_frames_and_check_their_input():
+    t = np.array([[0.0, 0.0, 5.0], [0.0, 0.0, 12.0], [0.0, 0.0, 70.0]])
+    q = np.tile([0.0, 0.0, 0.0, 1.0], (3, 1))
+    est = t + [[0.1, 0.0, 0.0], [0.0, 0.0, 3.0], [0.0, 0.0, 0.0]]
+    est[2] = np.nan  # lost
+    cov = np.tile(np.eye(6) * 0.01, (3, 1, 1))
+    rows = coverage_by_depth(t, q, est, q, cov, bins=(0.0, 8.0, 15.0, np.inf))
+    assert [(r["frames"], r["position"], r["rotation"]) for r in rows] == [(1, 1, 1), (1, 0, 1), (0, 0, 0), (2, 1, 2)]
+    assert rows[0]["depth_m"] == (0.0, 8.0)
+    with pytest.raises(ValueError, match="6x6"):
+        coverage_by_depth(t, q, est, q, cov[:2])
+    with pytest.raises(ValueError, match="level"):
+        coverage_by_depth(t, q, est, q, cov, level=1.0)
