@@ -35,9 +35,11 @@ def truth_msg(k: int) -> PoseStamped:
     return msg
 
 
-def pose_msg(k: int, error_m: float = 0.1, quat=QUAT) -> PoseWithCovarianceStamped:
+def pose_msg(k: int, error_m: float = 0.1, quat=QUAT, sigma=(0.0, 0.0)) -> PoseWithCovarianceStamped:
+    """A pose ``error_m`` off the truth in x; covariance diag(σ_m², σ_rad²), zeros ("unknown") by default."""
     msg = PoseWithCovarianceStamped(header=truth_msg(k).header)
     numpy_to_pose(msg.pose.pose, [error_m, 0.0, 10.0 - k], quat)
+    msg.pose.covariance = np.diag(np.repeat(np.square(sigma), 3)).ravel().tolist()
     return msg
 
 
@@ -59,7 +61,7 @@ def test_report_when_the_frame_count_is_reached_lost_frames_counted(ros, tmp_pat
     for k in range(5):
         rig.truth_pub.publish(truth_msg(k))
         if k != 2:  # frame 2: no pose, i.e. lost
-            rig.pose_pub.publish(pose_msg(k, error_m=0.1 * (k + 1)))
+            rig.pose_pub.publish(pose_msg(k, error_m=0.1 * (k + 1), sigma=(0.1, 0.01)))
     rig.pose_pub.publish(pose_msg(2, quat=[0.0, 0.0, 0.0, 2.0]))  # non-unit: dropped, stays lost
     rig.pose_pub.publish(pose_msg(4, error_m=9.0))  # a second pose for frame 4: dropped
     rig.pose_pub.publish(pose_msg(7))  # no ground truth for it: not scored
@@ -74,7 +76,12 @@ def test_report_when_the_frame_count_is_reached_lost_frames_counted(ros, tmp_pat
     assert c4["lost_frames_pct"] == pytest.approx(20.0) and c4["ms_per_frame"] is None
     assert c4["translation_m"]["mae"] == pytest.approx(np.mean([0.1, 0.2, 0.4, 0.5]))
     assert c4["rotation_deg"]["mae"] == pytest.approx(0.0, abs=1e-3)
-    assert "seq: translation error (m)" in (out / "tables.txt").read_text()
+    tables = (out / "tables.txt").read_text()
+    assert "seq: translation error (m)" in tables
+    # 95 % region of 3 dof: NEES <= 7.81; position errors 0.1, 0.2 (inside) and 0.4, 0.5 m (outside) at σ 0.1 m
+    coverage = {line.split()[0]: line.split()[-3:] for line in tables.split("95 % region")[1].splitlines()[2:]}
+    assert coverage["0-8"] == ["0/2", "|", "2/2"] and coverage["8-15"] == ["2/2", "|", "2/2"]
+    assert coverage["all"] == ["2/4", "|", "4/4"]
     assert len(read_pose_csv(out / "estimates.csv").stamps_ns) == 5  # frames 0, 1, 3, 4, 7
 
 

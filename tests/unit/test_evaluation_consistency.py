@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from uav_landing_vision.evaluation.consistency import coverage_by_depth, error_vectors, nees
+from uav_landing_vision.evaluation.consistency import coverage_by_depth, error_vectors, format_coverage, nees
 
 
 def test_error_vectors_are_position_difference_and_rotation_about_camera_axes():
@@ -24,6 +24,8 @@ def test_nees_matches_the_hand_computed_distance():
     e = np.array([[2.0, 1.0, 0.5], [np.nan, 0.0, 0.0]])
     out = nees(e, np.stack([cov, cov]))
     assert out[0] == pytest.approx(1.0 + 1.0 + 1.0) and np.isnan(out[1])
+    unknown = nees(e[:1], np.zeros((1, 3, 3)))  # all zeros: ROS's "unknown covariance", not a region
+    assert np.isnan(unknown[0])
 
 
 def test_errors_drawn_from_the_covariance_are_inside_its_95_percent_region_95_percent_of_the_time():
@@ -54,6 +56,12 @@ def test_coverage_bins_skip_lost_frames_and_check_their_input():
     rows = coverage_by_depth(t, q, est, q, cov, bins=(0.0, 8.0, 15.0, np.inf))
     assert [(r["frames"], r["position"], r["rotation"]) for r in rows] == [(1, 1, 1), (1, 0, 1), (0, 0, 0), (2, 1, 2)]
     assert rows[0]["depth_m"] == (0.0, 8.0)
+    cov[0] = 0.0  # no usable covariance: left out of the count
+    assert coverage_by_depth(t, q, est, q, cov, bins=(0.0, 8.0, 15.0, np.inf))[0]["frames"] == 0
+    text = format_coverage({"C4N2": rows, "C3N0": rows}, "seq")
+    assert text.splitlines()[1].split() == ["true", "depth", "C4N2", "C3N0"]
+    assert text.splitlines()[2].split() == ["0-8", "m", "1/1", "|", "1/1", "1/1", "|", "1/1"]
+    assert text.splitlines()[-2].split()[:2] == ["15+", "m"] and text.splitlines()[-1].split()[0] == "all"
     with pytest.raises(ValueError, match="6x6"):
         coverage_by_depth(t, q, est, q, cov[:2])
     with pytest.raises(ValueError, match="level"):

@@ -28,10 +28,12 @@ def error_vectors(t_true, q_true, t_est, q_est) -> np.ndarray:
 
 def nees(errors: np.ndarray, covariances: np.ndarray) -> np.ndarray:
     """``(F,)`` squared Mahalanobis distances ``eᵀ C⁻¹ e`` of ``(F, k)`` errors under ``(F, k, k)``
-    covariances; NaN where the error or the covariance is not finite."""
+    covariances; NaN where the error is not finite or the covariance is not finite and positive
+    definite (e.g. all zeros, ROS's "unknown")."""
     e, c = np.asarray(errors, float), np.asarray(covariances, float)
     out = np.full(len(e), np.nan)
     ok = np.all(np.isfinite(e), axis=1) & np.all(np.isfinite(c), axis=(1, 2))
+    ok[ok] = np.linalg.eigvalsh(0.5 * (c[ok] + np.swapaxes(c[ok], 1, 2)))[:, 0] > 0.0
     if np.any(ok):
         out[ok] = np.einsum("fi,fi->f", e[ok], np.linalg.solve(c[ok], e[ok][..., None])[..., 0])
     return out
@@ -39,8 +41,8 @@ def nees(errors: np.ndarray, covariances: np.ndarray) -> np.ndarray:
 
 def coverage_by_depth(t_true, q_true, t_est, q_est, covariances, bins=DEPTH_BINS_M, level: float = 0.95) -> list[dict]:
     """Per bin of true depth (``bins``: edges in m) and for all frames: ``frames`` with an
-    estimate, and how many of them have their ``position`` and ``rotation`` error inside the
-    covariance's ``level`` region."""
+    estimate and a usable covariance (see :func:`nees`), and how many of them have their
+    ``position`` and ``rotation`` error inside the covariance's ``level`` region."""
     if not 0.0 < level < 1.0:
         raise ValueError(f"level must be in (0, 1), got {level}")
     cov = np.asarray(covariances, float)
@@ -48,9 +50,9 @@ def coverage_by_depth(t_true, q_true, t_est, q_est, covariances, bins=DEPTH_BINS
         raise ValueError(f"need one 6x6 covariance per frame, got shape {cov.shape}")
     err = error_vectors(t_true, q_true, t_est, q_est)
     limit = chi2.ppf(level, 3)
-    inside_pos = nees(err[:, :3], cov[:, :3, :3]) <= limit
-    inside_rot = nees(err[:, 3:], cov[:, 3:, 3:]) <= limit
-    posed = np.all(np.isfinite(err), axis=1) & np.all(np.isfinite(cov), axis=(1, 2))
+    d_pos, d_rot = nees(err[:, :3], cov[:, :3, :3]), nees(err[:, 3:], cov[:, 3:, 3:])
+    posed = np.isfinite(d_pos) & np.isfinite(d_rot)
+    inside_pos, inside_rot = posed & (d_pos <= limit), posed & (d_rot <= limit)
     depth = np.asarray(t_true, float)[:, 2]
     edges = list(zip(bins[:-1], bins[1:])) + [(None, None)]
     rows = []
@@ -59,3 +61,18 @@ def coverage_by_depth(t_true, q_true, t_est, q_est, covariances, bins=DEPTH_BINS
         rows.append({"depth_m": None if lo is None else (float(lo), float(hi)), "frames": int(sel.sum()),
                      "position": int((inside_pos & sel).sum()), "rotation": int((inside_rot & sel).sum())})
     return rows
+
+
+def format_coverage(coverage: dict[str, list[dict]], title: str) -> str:
+    """A text table of :func:`coverage_by_depth` rows, one column per variant (same bins):
+    ``inside/frames`` for the position, then for the rotation."""
+    names = list(coverage)
+    width = max(24, *(len(n) + 2 for n in names))
+    lines = [f"{title}: errors inside the published covariance's 95 % region (position | rotation)",
+             f"{'true depth':<16}" + "".join(f"{n:>{width}}" for n in names)]
+    for i, row in enumerate(coverage[names[0]]):
+        lo, hi = row["depth_m"] or (None, None)
+        label = "all" if lo is None else f"{lo:g}+ m" if np.isinf(hi) else f"{lo:g}-{hi:g} m"
+        cells = (f"{c['position']}/{c['frames']} | {c['rotation']}/{c['frames']}" for c in (coverage[n][i] for n in names))
+        lines.append(f"{label:<16}" + "".join(f"{c:>{width}}" for c in cells))
+    return "\n".join(lines)

@@ -12,7 +12,9 @@ frame without a pose counts as lost. The report is written to ``out_dir`` when t
 Report (``evaluation.write_report`` / ``make_summary``): ``tables.txt``, ``translation_error.csv``,
 ``rotation_error.csv``, the two error plots (PNG), ``summary.json`` (the schema of every
 evaluation command, ``ms_per_frame`` null) and ``estimates.csv`` (the poses, for
-``uav-landing score``). Without any ground truth nothing is written (logged). Non-finite poses,
+``uav-landing score``). ``tables.txt`` ends with how many errors lie inside the published
+covariance's 95 % region, by true depth (``evaluation.consistency``; poses whose covariance is
+not positive definite, e.g. all zeros, are left out of that count). Without any ground truth nothing is written (logged). Non-finite poses,
 non-unit quaternions and repeated stamps are logged, counted and dropped.
 """
 
@@ -26,7 +28,8 @@ import rclpy
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from rclpy.executors import ExternalShutdownException
 
-from ..evaluation import make_summary, save_summary, score, variant_summary, write_report
+from ..evaluation import align, make_summary, save_summary, score, variant_summary, write_report
+from ..evaluation.consistency import coverage_by_depth, format_coverage
 from ..sim import Poses, write_pose_csv
 from .base import LandingNode, run_node, stamp_ns
 from .poses import pose_to_numpy
@@ -57,6 +60,7 @@ class EvaluatorNode(LandingNode):
         self.config = self.load_config(EvaluatorConfig)
         self.truth: dict[int, tuple] = {}
         self.estimates: dict[int, tuple] = {}
+        self.covariances: dict[int, np.ndarray] = {}
         self._last_truth = None  # monotonic time of the last ground truth
         self.report_dir: Path | None = None
         self.create_subscription(PoseWithCovarianceStamped, "uav/pose", self._on_pose, RELIABLE_QOS)
@@ -76,7 +80,9 @@ class EvaluatorNode(LandingNode):
 
     def _on_pose(self, msg: PoseWithCovarianceStamped) -> None:
         self.counters["received"] += 1
-        self._store(self.estimates, "uav/pose", stamp_ns(msg.header.stamp), msg.pose.pose)
+        stamp = stamp_ns(msg.header.stamp)
+        if self._store(self.estimates, "uav/pose", stamp, msg.pose.pose):
+            self.covariances[stamp] = np.asarray(msg.pose.covariance, float).reshape(6, 6)
 
     def _on_truth(self, msg: PoseStamped) -> None:
         self.counters["truth_received"] += 1
@@ -102,6 +108,8 @@ class EvaluatorNode(LandingNode):
         errors = score(truth, estimates)
         out = Path(cfg.out_dir)
         text = write_report(out, cfg.sequence, {cfg.variant: errors})
+        text += "\n\n" + self._coverage(truth, estimates) + "\n"
+        (out / "tables.txt").write_text(text)
         save_summary(out / "summary.json", make_summary(cfg.sequence, len(truth.stamps_ns), {cfg.variant: variant_summary(errors)}))
         write_pose_csv(out / "estimates.csv", estimates)
         matched = int(np.isfinite(errors["euclidean"]).sum())
@@ -109,6 +117,14 @@ class EvaluatorNode(LandingNode):
         self.report_dir = out
         self.get_logger().info(f"{len(truth.stamps_ns)} ground-truth frames, {matched} with a pose; report in {out}\n{text}")
         return out
+
+
+    def _coverage(self, truth: Poses, estimates: Poses) -> str:
+        est = align(truth, estimates)
+        unknown = np.full((6, 6), np.nan)
+        cov = np.array([self.covariances.get(int(s), unknown) for s in truth.stamps_ns])
+        rows = coverage_by_depth(truth.trans, truth.quat, est.trans, est.quat, cov)
+        return format_coverage({self.config.variant: rows}, self.config.sequence)
 
 
 def _poses(by_stamp: dict) -> Poses:

@@ -203,6 +203,7 @@ def format_results(result: EvaluationResult) -> str:
     in deg, one column per variant), then lost frames and ms per frame by stage, then (ours) how
     many errors lie inside the published covariance's 95 % region, by true depth."""
     from ..evaluation import format_table, statistics_table
+    from ..evaluation.consistency import coverage_by_depth, format_coverage
 
     label = sequence_label(result)
     head = f"{label}, {result.frames} frames"
@@ -217,23 +218,6 @@ def format_results(result: EvaluationResult) -> str:
         rows.append(f"{stage:<16}" + "".join(f"{result.stage_ms[n][stage]:>{width}.1f}" for n in names))
     rows.append(f"{'ms/frame':<16}" + "".join(f"{result.ms_per_frame[n]:>{width}.1f}" for n in names))
     parts.append("\n".join(rows))
-    parts.append(format_coverage(result, head))
+    parts.append(format_coverage({n: coverage_by_depth(*result.truth, *result.estimates[n], result.covariances[n])
+                                  for n in names}, head))
     return "\n\n".join(parts)
-
-
-def format_coverage(result: EvaluationResult, head: str) -> str:
-    """Per variant and bin of true depth: frames whose position / rotation error lies inside the
-    published covariance's 95 % region, of the frames with an estimate."""
-    from ..evaluation.consistency import coverage_by_depth
-
-    names = list(result.errors)
-    table = {n: coverage_by_depth(*result.truth, *result.estimates[n], result.covariances[n]) for n in names}
-    width = max(24, *(len(n) + 2 for n in names))
-    rows = [f"{head}: errors inside the published covariance's 95 % region (position | rotation)",
-            f"{'true depth':<16}" + "".join(f"{n:>{width}}" for n in names)]
-    for i, row in enumerate(table[names[0]]):
-        lo, hi = row["depth_m"] or (None, None)
-        label = "all" if lo is None else f"{lo:g}+ m" if np.isinf(hi) else f"{lo:g}-{hi:g} m"
-        cells = (f"{c['position']}/{c['frames']} | {c['rotation']}/{c['frames']}" for c in (table[n][i] for n in names))
-        rows.append(f"{label:<16}" + "".join(f"{c:>{width}}" for c in cells))
-    return "\n".join(rows)
