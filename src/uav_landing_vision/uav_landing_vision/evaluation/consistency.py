@@ -64,8 +64,8 @@ def coverage_by_depth(t_true, q_true, t_est, q_est, covariances, bins=DEPTH_BINS
 
 
 def format_coverage(coverage: dict[str, list[dict]], title: str) -> str:
-    """A text table of :func:`coverage_by_depth` rows, one column per variant (same bins):
-    ``inside/frames`` for the position, then for the rotation."""
+    """A text table of :func:`coverage_by_depth` rows (its default 95 % level), one column per
+    variant (same bins): ``inside/frames`` for the position, then for the rotation."""
     names = list(coverage)
     width = max(24, *(len(n) + 2 for n in names))
     lines = [f"{title}: errors inside the published covariance's 95 % region (position | rotation)",
