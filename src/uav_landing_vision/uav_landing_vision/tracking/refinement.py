@@ -7,7 +7,7 @@ drawn about the current best rotation with that stage's σ, scored in one call (
 the first); the best candidate replaces the rotation when it scores higher. The position is not
 searched and nothing is fed back to the particles or their filters: with feedback, or with
 depth in the search, the track drifts to too-far depths, where the metric prefers short wings
-that miss the faint tips (README).
+that miss the faint tips (docs/tracking.md).
 
 Across the line of sight the colour metric is sharper still. At the true pose beyond 60 m
 (held-out landings), moving the silhouette half a pixel costs 16–21 % of the score, as much as a
