@@ -21,10 +21,10 @@ from uav_landing_vision.tracking.track_state import TrackMonitor, TrackState, Tr
 from uav_landing_vision.tracking.upf import (
     Tracker,
     TrackerConfig,
+    depth_band,
     load_tracker_config,
     parse_variant,
     particle_covariance,
-    line_of_sight_fraction,
 )
 
 CAMERA = CameraModel(320, 240, [[280.0, 0, 160.0], [0, 280.0, 120.0], [0, 0, 1]])
@@ -175,30 +175,34 @@ def test_tracker_covariance_is_psd_and_floored(renderer, frame):
     assert line_of_sight @ cov[:3, :3] @ line_of_sight >= (0.05 * np.linalg.norm(pos)) ** 2
 
 
-@pytest.mark.parametrize("bounds, used", [((15.0, 60.0), 0), ((3.0, 60.0), 1), ((1.0, 3.0), 2)])
-def test_range_fraction_adds_variance_along_the_line_of_sight_only(renderer, frame, bounds, used):
-    fractions = (0.1, 0.2, 0.3)
-    _, without = run(renderer, frame, "C4N2", covariance_range_fraction=(0.0, 0.0, 0.0),
-                     covariance_range_bounds_m=bounds)
-    _, with_ = run(renderer, frame, "C4N2", covariance_range_fraction=fractions, covariance_range_bounds_m=bounds)
+@pytest.mark.parametrize("bands, used", [((15.0, 60.0), 0), ((3.0, 60.0), 1), ((1.0, 3.0), 2)])
+def test_covariance_floors_and_range_fraction_of_the_estimate_depth_band(renderer, frame, bands, used):
+    floors, fractions = (1.0, 2.0, 3.0), (0.1, 0.2, 0.3)
+    _, without = run(renderer, frame, "C4N2", covariance_floor_deg=(0.0,) * 3, covariance_range_fraction=(0.0,) * 3,
+                     covariance_bands_m=bands)
+    _, with_ = run(renderer, frame, "C4N2", covariance_floor_deg=floors, covariance_range_fraction=fractions,
+                   covariance_bands_m=bands)
     a, b = without[-1], with_[-1]
     assert 3.0 < a.position[2] < 15.0  # the estimate's depth picks the band
     np.testing.assert_array_equal(a.position, b.position)  # the estimate does not change
+    np.testing.assert_array_equal(a.quat, b.quat)
     np.testing.assert_allclose(b.covariance[:3, :3] - a.covariance[:3, :3],
-                               fractions[used] ** 2 * np.outer(a.position, a.position))
-    np.testing.assert_array_equal(b.covariance[3:, :], a.covariance[3:, :])
+                               fractions[used] ** 2 * np.outer(a.position, a.position))  # along the line of sight
+    np.testing.assert_allclose(b.covariance[3:, 3:] - a.covariance[3:, 3:], np.radians(floors[used]) ** 2 * np.eye(3))
+    np.testing.assert_array_equal(b.covariance[3:, :3], a.covariance[3:, :3])
 
 
-def test_line_of_sight_fraction_bands():
-    fractions, bounds = (0.125, 0.05, 0.075), (15.0, 60.0)
+def test_depth_bands():
+    bands = (15.0, 60.0)
     depths = [0.5, 14.9, 15.0, 15.1, 60.0, 60.1, 500.0]
-    assert [line_of_sight_fraction(z, fractions, bounds) for z in depths] == [0.125] * 3 + [0.05] * 2 + [0.075] * 2
-    assert line_of_sight_fraction(80.0, (0.05,), ()) == 0.05  # one fraction for every depth
-    TrackerConfig(covariance_range_fraction=(0.05,), covariance_range_bounds_m=())
+    assert [depth_band(z, bands) for z in depths] == [0, 0, 0, 1, 1, 2, 2]
+    assert depth_band(80.0, ()) == 0  # one band for every depth
+    TrackerConfig(covariance_floor_deg=(1.0,), covariance_range_fraction=(0.05,), covariance_bands_m=())
     for bad in ({"covariance_range_fraction": (0.1, 0.05)},  # one too few for two bounds
-                {"covariance_range_fraction": (0.1,), "covariance_range_bounds_m": (15.0,)},
-                {"covariance_range_bounds_m": (60.0, 15.0)}, {"covariance_range_bounds_m": (0.0, 15.0)},
-                {"covariance_range_fraction": (0.1, -0.01, 0.1)}):
+                {"covariance_floor_deg": (1.0, 2.0, 3.0, 4.0)},
+                {"covariance_range_fraction": (0.1,), "covariance_floor_deg": (1.0,), "covariance_bands_m": (15.0,)},
+                {"covariance_bands_m": (60.0, 15.0)}, {"covariance_bands_m": (0.0, 15.0)},
+                {"covariance_range_fraction": (0.1, -0.01, 0.1)}, {"covariance_floor_deg": (1.0, -1.0, 1.0)}):
         with pytest.raises(ValueError):
             TrackerConfig(**bad)
 

@@ -27,9 +27,10 @@ Per frame (:meth:`Tracker.step`), with M particles of which M0 = M − boosted a
    not changed, but within ``rotation_prior_max_m`` the published rotation anchors the next
    frame's rotation prior),
    a 6×6 covariance from the weighted particle cloud (:func:`particle_covariance`) with a
-   range-proportional σ added along the line of sight, its fraction of the range set per depth
-   band (ours: the cloud's spread alone covers too little of the depth error, and least near the
-   ship and far out), the track state (:mod:`.track_state`) and per-stage times.
+   range-proportional σ added along the line of sight and a σ floor on each rotation axis, both
+   set per band of the estimate's depth (ours: the cloud's spread alone covers too little of the
+   error, and least near the ship and far out), the track state (:mod:`.track_state`) and
+   per-stage times.
 
 Everything is batched over particles; each likelihood evaluation is one ``Renderer.silhouettes``
 call. Random draws come from a Generator seeded by ``TrackerConfig.seed``; the refinement has its
@@ -90,11 +91,11 @@ class TrackerConfig:
     motion: MotionFilterConfig = field(default_factory=MotionFilterConfig)
     track: TrackStateConfig = field(default_factory=TrackStateConfig)
     covariance_floor_m: float = 0.05  # σ added to each translation variance
-    covariance_floor_deg: float = 1.0  # σ added to each rotation variance
-    # ours: σ of this fraction of the range added along the line of sight, one fraction per depth band
-    # of the estimate, the bands split at covariance_range_bounds_m (see yaml)
+    # ours, per band of the estimate's depth (bands split at covariance_bands_m, see yaml): σ added to
+    # each rotation variance, and σ of a fraction of the range added along the line of sight
+    covariance_floor_deg: tuple[float, ...] = (1.0, 5.0, 8.0)
     covariance_range_fraction: tuple[float, ...] = (0.125, 0.05, 0.075)
-    covariance_range_bounds_m: tuple[float, ...] = (15.0, 60.0)
+    covariance_bands_m: tuple[float, ...] = (15.0, 60.0)
     depth_prior_sigma: float = 0.20  # ours, 0 = thesis: relative σ of the boosted-depth prior (depth_prior)
     depth_prior_floor: float = 0.5  # the prior's value far from the boosted depth
     depth_prior_max_m: float = 30.0  # no prior where the boosted depth is beyond this
@@ -117,14 +118,15 @@ class TrackerConfig:
             raise ValueError(f"resampling must be one of {sorted(RESAMPLERS)}, got {self.resampling!r}")
         if self.optimiser not in OPTIMISERS:
             raise ValueError(f"optimiser must be one of {sorted(OPTIMISERS)}, got {self.optimiser!r}")
-        floors = (self.covariance_floor_m, self.covariance_floor_deg, *self.covariance_range_fraction)
+        floors = (self.covariance_floor_m, *self.covariance_floor_deg, *self.covariance_range_fraction)
         if self.tile < 16 or not all(f >= 0 for f in floors):
             raise ValueError("need tile >= 16 and non-negative covariance floors and range fractions")
-        bounds = np.asarray(self.covariance_range_bounds_m, float)
-        if len(self.covariance_range_fraction) != len(bounds) + 1 or not (np.all(bounds > 0)
-                                                                           and np.all(np.diff(bounds) > 0)):
-            raise ValueError("covariance_range_bounds_m must be increasing positive depths, one fewer than the "
-                             f"covariance_range_fraction values; got {self.covariance_range_bounds_m!r} and "
+        bands = np.asarray(self.covariance_bands_m, float)
+        per_band = {len(self.covariance_floor_deg), len(self.covariance_range_fraction)}
+        if per_band != {len(bands) + 1} or not (np.all(bands > 0) and np.all(np.diff(bands) > 0)):
+            raise ValueError("covariance_bands_m must be increasing positive depths, and covariance_floor_deg and "
+                             "covariance_range_fraction one value per band (one more than the bounds); got "
+                             f"{self.covariance_bands_m!r}, {self.covariance_floor_deg!r} and "
                              f"{self.covariance_range_fraction!r}")
         if not (self.depth_prior_sigma >= 0 and 0 < self.depth_prior_floor <= 1 and self.depth_prior_max_m > 0):
             raise ValueError("need depth_prior_sigma >= 0, 0 < depth_prior_floor <= 1 and depth_prior_max_m > 0")
@@ -223,11 +225,10 @@ def rotation_prior(quats: np.ndarray, anchor: np.ndarray, sigma_rad: float, floo
     return floor + (1.0 - floor) * np.exp(-0.5 * u * u)
 
 
-def line_of_sight_fraction(depth: float, fractions, bounds_m) -> float:
-    """Ours: the line-of-sight σ of :func:`particle_covariance` as a fraction of the range, for an
-    estimate at ``depth``: ``fractions[i]`` for the i-th band of depths split at ``bounds_m``
-    (a depth on a bound belongs to the nearer band)."""
-    return float(fractions[int(np.searchsorted(bounds_m, depth, side="left"))])
+def depth_band(depth: float, bounds_m) -> int:
+    """Index of the band of depths split at ``bounds_m`` (increasing) that holds ``depth``; a depth
+    on a bound belongs to the nearer band."""
+    return int(np.searchsorted(bounds_m, depth, side="left"))
 
 
 def particle_covariance(particles: ParticleSet, pos: np.ndarray, quat: np.ndarray,
@@ -459,9 +460,9 @@ class Tracker:
         clock.lap("refinement")
         near = cfg.rotation_prior_sigma_deg > 0 and pos[2] <= cfg.rotation_prior_max_m
         self._turn_anchor = quat.copy() if near else None
-        fraction = line_of_sight_fraction(pos[2], cfg.covariance_range_fraction, cfg.covariance_range_bounds_m)
-        cov = particle_covariance(particles, pos, quat, cfg.covariance_floor_m, np.radians(cfg.covariance_floor_deg),
-                                  fraction)
+        band = depth_band(pos[2], cfg.covariance_bands_m)
+        cov = particle_covariance(particles, pos, quat, cfg.covariance_floor_m,
+                                  np.radians(cfg.covariance_floor_deg[band]), cfg.covariance_range_fraction[band])
         n_eff = particles.effective_size()
         clock.lap("output")
         return TrackResult(stamp_ns, state, pos, quat, cov, best_w, n_eff, clock.ms, particles)
