@@ -14,8 +14,9 @@ Report (``evaluation.write_report`` / ``make_summary``): ``tables.txt``, ``trans
 evaluation command, ``ms_per_frame`` null) and ``estimates.csv`` (the poses, for
 ``uav-landing score``). ``tables.txt`` ends with how many errors lie inside the published
 covariance's 95 % region, by true depth (``evaluation.consistency``; poses whose covariance is
-not positive definite, e.g. all zeros, are left out of that count). Without any ground truth nothing is written (logged). Non-finite poses,
-non-unit quaternions and repeated stamps are logged, counted and dropped.
+not positive definite, e.g. all zeros, are left out of that count). Without any ground truth
+nothing is written (logged). Non-finite poses, non-unit quaternions and repeated stamps are
+logged, counted and dropped.
 """
 
 import sys
@@ -28,7 +29,7 @@ import rclpy
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from rclpy.executors import ExternalShutdownException
 
-from ..evaluation import align, make_summary, save_summary, score, variant_summary, write_report
+from ..evaluation import align, make_summary, pose_errors, save_summary, variant_summary, write_report
 from ..evaluation.consistency import coverage_by_depth, format_coverage
 from ..sim import Poses, write_pose_csv
 from .base import LandingNode, run_node, stamp_ns
@@ -105,11 +106,13 @@ class EvaluatorNode(LandingNode):
             return None
         truth = _poses(self.truth)
         estimates = _poses(self.estimates)
-        errors = score(truth, estimates)
+        est = align(truth, estimates)
+        errors = pose_errors(truth.trans, truth.quat, est.trans, est.quat)
         out = Path(cfg.out_dir)
-        text = write_report(out, cfg.sequence, {cfg.variant: errors})
-        text += "\n\n" + self._coverage(truth, estimates) + "\n"
-        (out / "tables.txt").write_text(text)
+        coverage = self._coverage(truth, est)
+        text = write_report(out, cfg.sequence, {cfg.variant: errors}) + "\n\n" + coverage
+        with (out / "tables.txt").open("a") as tables:
+            tables.write(f"\n{coverage}\n")
         save_summary(out / "summary.json", make_summary(cfg.sequence, len(truth.stamps_ns), {cfg.variant: variant_summary(errors)}))
         write_pose_csv(out / "estimates.csv", estimates)
         matched = int(np.isfinite(errors["euclidean"]).sum())
@@ -118,9 +121,8 @@ class EvaluatorNode(LandingNode):
         self.get_logger().info(f"{len(truth.stamps_ns)} ground-truth frames, {matched} with a pose; report in {out}\n{text}")
         return out
 
-
-    def _coverage(self, truth: Poses, estimates: Poses) -> str:
-        est = align(truth, estimates)
+    def _coverage(self, truth: Poses, est: Poses) -> str:
+        """The covariance-coverage table of the estimates ``est`` aligned to the ground truth."""
         unknown = np.full((6, 6), np.nan)
         cov = np.array([self.covariances.get(int(s), unknown) for s in truth.stamps_ns])
         rows = coverage_by_depth(truth.trans, truth.quat, est.trans, est.quat, cov)
