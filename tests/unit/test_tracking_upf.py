@@ -5,6 +5,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from uav_landing_vision.camera import CameraModel
 from uav_landing_vision.config import ConfigError
@@ -318,9 +319,9 @@ def test_rotation_prior_against_scipy_angles():
     assert rotation_prior(anchor.as_quat()[None], anchor.as_quat(), sigma, floor)[0] == pytest.approx(1.0)
 
 
-def test_rotation_prior_anchors_on_the_last_published_rotation_near_the_ship(renderer, frame):
+def test_rotation_prior_anchors_on_the_last_refined_rotation_near_the_ship(renderer, frame):
     """Within ``rotation_prior_max_m`` every score is multiplied by the rotation prior about the
-    last published rotation; best_likelihood stays the likelihood alone; beyond it, or with
+    last refined rotation (the published one before the window); best_likelihood stays the likelihood alone; beyond it, or with
     σ = 0, the tracker is as without it."""
     cfg = TrackerConfig.from_variant("C4N2", particles=40, boosted=10, rotation_prior_sigma_deg=5.0,
                                      rotation_prior_floor=0.2, depth_prior_sigma=0.0)
@@ -345,11 +346,12 @@ def test_rotation_prior_anchors_on_the_last_published_rotation_near_the_ship(ren
 def test_rotation_refinement_changes_only_the_published_rotation(renderer, frame):
     """The refinement turns the published rotation to one that scores at least as well as the best
     particle's, at the same position; the particles, and so every later frame, stay as without it
-    (without the rotation prior, whose anchor is the published rotation)."""
+    (without the rotation prior, whose anchor is the refined rotation, and without the window)."""
     off = RotationRefinementConfig()
     on = RotationRefinementConfig(candidates=32, sigma_deg=(3.0, 1.0))
-    _, a = run(renderer, frame, "C4N2", rotation_prior_sigma_deg=0.0, refine=off, estimate="best")
-    b_tracker, b = run(renderer, frame, "C4N2", rotation_prior_sigma_deg=0.0, refine=on, estimate="best")
+    _, a = run(renderer, frame, "C4N2", rotation_prior_sigma_deg=0.0, refine=off, estimate="best", rotation_window=1)
+    b_tracker, b = run(renderer, frame, "C4N2", rotation_prior_sigma_deg=0.0, refine=on, estimate="best",
+                       rotation_window=1)
     for ra, rb in zip(a, b):
         np.testing.assert_array_equal(ra.position, rb.position)
         np.testing.assert_array_equal(ra.particles.pos, rb.particles.pos)
@@ -367,8 +369,8 @@ def test_aligned_refinement_compares_rotations_at_their_best_image_shift(rendere
     rotation changes; positions and particles stay as without the refinement (no rotation prior)."""
     off = RotationRefinementConfig()
     aligned = RotationRefinementConfig(candidates=32, sigma_deg=(3.0, 1.0), align_px=0.5)
-    _, a = run(renderer, frame, "C4N2", rotation_prior_sigma_deg=0.0, refine=off)
-    tracker, b = run(renderer, frame, "C4N2", rotation_prior_sigma_deg=0.0, refine=aligned)
+    _, a = run(renderer, frame, "C4N2", rotation_prior_sigma_deg=0.0, refine=off, rotation_window=1)
+    tracker, b = run(renderer, frame, "C4N2", rotation_prior_sigma_deg=0.0, refine=aligned, rotation_window=1)
     plain, _ = run(renderer, frame, "C4N2", rotation_prior_sigma_deg=0.0, refine=replace(aligned, align_px=0.0))
     for ra, rb in zip(a, b):
         np.testing.assert_array_equal(ra.position, rb.position)
@@ -385,11 +387,12 @@ def test_aligned_refinement_compares_rotations_at_their_best_image_shift(rendere
 def test_mean_estimate_publishes_the_weighted_mean_and_leaves_the_particles_alone(renderer, frame):
     """``estimate: mean`` publishes the particles' weighted mean pose (rotation refined at the mean
     position); the particles are those of the thesis's best-particle output, frame after frame
-    (without the rotation prior, which anchors on the published rotation)."""
+    (without the rotation prior, which anchors on the refined rotation, and without the window)."""
     off = RotationRefinementConfig()
-    _, best = run(renderer, frame, "C4N2", rotation_prior_sigma_deg=0.0, refine=off, estimate="best")
-    _, mean = run(renderer, frame, "C4N2", rotation_prior_sigma_deg=0.0, refine=off, estimate="mean")
-    tracker, refined = run(renderer, frame, "C4N2", rotation_prior_sigma_deg=0.0, refine=RotationRefinementConfig(candidates=32), estimate="mean")
+    _, best = run(renderer, frame, "C4N2", rotation_prior_sigma_deg=0.0, refine=off, estimate="best", rotation_window=1)
+    _, mean = run(renderer, frame, "C4N2", rotation_prior_sigma_deg=0.0, refine=off, estimate="mean", rotation_window=1)
+    tracker, refined = run(renderer, frame, "C4N2", rotation_prior_sigma_deg=0.0, refine=RotationRefinementConfig(candidates=32),
+                           estimate="mean", rotation_window=1)
     for rb, rm, rr in zip(best, mean, refined):
         np.testing.assert_array_equal(rb.particles.pos, rm.particles.pos)
         np.testing.assert_array_equal(rb.particles.quat, rm.particles.quat)
@@ -403,3 +406,22 @@ def test_mean_estimate_publishes_the_weighted_mean_and_leaves_the_particles_alon
     assert any(not np.array_equal(rb.position, rm.position) for rb, rm in zip(best, mean))
     assert np.linalg.norm(mean[-1].position - TRUE_POS) < 0.5
     assert np.degrees(geodesic_angle(mean[-1].quat, TRUE_QUAT)) < 12.0
+
+
+def test_rotation_window_averages_the_published_rotation_and_nothing_else(renderer, frame):
+    """``rotation_window: 2`` publishes the mean of this and the last frame's rotations (scipy's
+    mean as the oracle); positions, particles and the rotation prior's anchor are those of the
+    tracker without the window; a reset empties it."""
+    _, plain = run(renderer, frame, "C4N2", rotation_window=1)
+    tracker, windowed = run(renderer, frame, "C4N2", rotation_window=2)
+    np.testing.assert_array_equal(windowed[0].quat, plain[0].quat)
+    for k in range(1, len(plain)):
+        np.testing.assert_array_equal(windowed[k].position, plain[k].position)
+        np.testing.assert_array_equal(windowed[k].particles.quat, plain[k].particles.quat)
+        expected = Rotation.from_quat([plain[k - 1].quat, plain[k].quat]).mean().as_quat()
+        assert np.degrees(geodesic_angle(windowed[k].quat, expected)) < 1e-6
+    np.testing.assert_array_equal(tracker._turn_anchor, plain[-1].quat)
+    tracker.reset()
+    assert len(tracker.window._recent) == 0
+    with pytest.raises(ValueError, match="rotation_window"):
+        TrackerConfig(rotation_window=0)

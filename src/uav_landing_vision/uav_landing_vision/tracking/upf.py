@@ -14,7 +14,7 @@ Per frame (:meth:`Tracker.step`), with M particles of which M0 = M − boosted a
    App. B scheme back to M particles. Ours: every score (weighting, z_t, optimisation,
    refinement) is the likelihood times a depth prior about the boosted depth (:func:`depth_prior`)
    when that depth is within ``depth_prior_max_m`` and within ``depth_prior_gate`` of the last best
-   particle's, and times a rotation prior about the last published rotation
+   particle's, and times a rotation prior about the last refined rotation
    (:func:`rotation_prior`) while that estimate is within ``rotation_prior_max_m``; the track
    state and ``best_likelihood`` use the likelihood alone.
 4. **Pose optimisation** (§5.5): N iterations of the configured optimiser (PFO by default, with
@@ -24,8 +24,9 @@ Per frame (:meth:`Tracker.step`), with M particles of which M0 = M − boosted a
    weighted mean (:meth:`ParticleSet.mean_pose`), with, ours, its rotation refined by a
    rotation-only local search (:mod:`.refinement`, ``refine.candidates`` > 0, each candidate
    scored at its best sub-pixel image shift with ``refine.align_px`` > 0; the particles are
-   not changed, but within ``rotation_prior_max_m`` the published rotation anchors the next
-   frame's rotation prior),
+   not changed, but within ``rotation_prior_max_m`` the refined rotation anchors the next
+   frame's rotation prior), and, ours, that rotation averaged with the last frame's
+   (``rotation_window``, :mod:`.smoothing`),
    a 6×6 covariance from the weighted particle cloud (:func:`particle_covariance`) with a
    range-proportional σ added along the line of sight and a σ floor on each rotation axis, both
    set per band of the estimate's depth (ours: the cloud's spread alone covers too little of the
@@ -51,6 +52,7 @@ from .motion_bank import MotionBank
 from .optimisation import PFO, PSO, ConstrictedPSO, GAbF, PFOConfig, evaluate
 from .particles import ParticleSet
 from .refinement import RotationRefinement, RotationRefinementConfig
+from .smoothing import RotationWindow
 from .resampling import RESAMPLERS, fixed_size, resample
 from .track_state import TrackMonitor, TrackState, TrackStateConfig
 
@@ -104,6 +106,7 @@ class TrackerConfig:
     rotation_prior_floor: float = 0.5  # the rotation prior's value far from the last estimate's rotation
     rotation_prior_max_m: float = 15.0  # no rotation prior while the last estimate is beyond this depth
     estimate: str = "mean"  # ours (best = thesis), see yaml
+    rotation_window: int = 2  # ours, 1 = thesis: frames whose estimated rotations are averaged for output
     refine: RotationRefinementConfig = field(
         default_factory=lambda: RotationRefinementConfig(candidates=96, sigma_deg=(4.0, 1.5), align_px=0.5))  # ours
 
@@ -135,6 +138,8 @@ class TrackerConfig:
             raise ValueError("need rotation_prior_sigma_deg >= 0, 0 < rotation_prior_floor <= 1 and rotation_prior_max_m > 0")
         if not self.depth_prior_gate >= 0:
             raise ValueError(f"depth_prior_gate must be non-negative, got {self.depth_prior_gate!r}")
+        if int(self.rotation_window) != self.rotation_window or self.rotation_window < 1:
+            raise ValueError(f"rotation_window must be a positive integer, got {self.rotation_window!r}")
         if self.estimate not in ESTIMATES:
             raise ValueError(f"estimate must be one of {ESTIMATES}, got {self.estimate!r}")
         if self.variant in ROTATION_FILTER:
@@ -163,7 +168,7 @@ STAGES = ("prepare", "proposal", "measurement", "filtering", "weighting", "resam
 class TrackResult:
     """One frame's output. ``position``/``quat``: UAV body in the camera optical frame (NaN when
     there is no estimate): the particles' weighted mean or the best particle (``estimate``), its
-    rotation refined. ``covariance``: 6×6, ROS order (x, y, z, rot_x, rot_y, rot_z); the
+    rotation refined and averaged over the last ``rotation_window`` frames. ``covariance``: 6×6, ROS order (x, y, z, rot_x, rot_y, rot_z); the
     rotation part is of the small rotation r with ``q_particle = exp(r) ⊗ q_estimate``, i.e.
     about the camera's fixed axes (as ``PoseWithCovariance`` expects), in rad².
     ``best_likelihood``: the best particle's likelihood (before the rotation refinement); it
@@ -276,7 +281,8 @@ class Tracker:
         self.filters = MotionBank(config.motion) if config.uses_filters else None
         self._fresh: ParticleSet | None = None  # this frame's boosted particles
         self._anchor: float | None = None  # this frame's boosted depth z_b (depth_prior), None: no prior
-        self._turn_anchor: np.ndarray | None = None  # last published rotation (rotation_prior), None: no prior
+        self._turn_anchor: np.ndarray | None = None  # last refined rotation (rotation_prior), None: no prior
+        self.window = RotationWindow(config.rotation_window, 1.5 * config.motion.dt)
 
     @property
     def state(self) -> TrackState:
@@ -292,6 +298,7 @@ class Tracker:
         """Forget the track (the next frame with hypotheses re-initialises it)."""
         self.particles = None
         self._turn_anchor = None
+        self.window.reset()
         self.monitor.lost()
 
     def step(self, frame: np.ndarray, stamp_ns: int, hypotheses=None) -> TrackResult:
@@ -460,6 +467,7 @@ class Tracker:
         clock.lap("refinement")
         near = cfg.rotation_prior_sigma_deg > 0 and pos[2] <= cfg.rotation_prior_max_m
         self._turn_anchor = quat.copy() if near else None
+        quat = self.window(stamp_ns, quat)
         band = depth_band(pos[2], cfg.covariance_bands_m)
         cov = particle_covariance(particles, pos, quat, cfg.covariance_floor_m,
                                   np.radians(cfg.covariance_floor_deg[band]), cfg.covariance_range_fraction[band])
@@ -468,6 +476,7 @@ class Tracker:
         return TrackResult(stamp_ns, state, pos, quat, cov, best_w, n_eff, clock.ms, particles)
 
     def _empty(self, stamp_ns: int, clock, best_w: float = 0.0) -> TrackResult:
+        self.window.reset()
         clock.lap("output")
         nan = np.full(3, np.nan)
         return TrackResult(stamp_ns, self.state, nan, np.full(4, np.nan), np.full((6, 6), np.nan), best_w, 0.0,

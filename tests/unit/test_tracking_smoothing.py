@@ -1,0 +1,65 @@
+"""The rotation window of the published estimate (tracking/smoothing.py)."""
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from uav_landing_vision.geometry import geodesic_angle
+from uav_landing_vision.tracking.smoothing import RotationWindow
+
+DT_NS = 34_000_000
+
+
+def close_rotations(a, b, tol_deg=1e-6):
+    return float(np.degrees(geodesic_angle(np.asarray(a)[None], np.asarray(b)))[0]) < tol_deg
+
+
+def test_one_frame_passes_the_estimate_through():
+    window = RotationWindow(1, 0.051)
+    quats = Rotation.random(5, random_state=1).as_quat()
+    for k, q in enumerate(quats):
+        np.testing.assert_array_equal(window(k * DT_NS, q), q)
+
+
+def test_the_mean_of_the_window_matches_scipy():
+    rng = np.random.default_rng(3)
+    window = RotationWindow(3, 0.051)
+    base = Rotation.random(random_state=4)
+    rots = [base * Rotation.from_rotvec(rng.normal(0.0, 0.2, 3)) for _ in range(6)]
+    for k, r in enumerate(rots):
+        out = window(k * DT_NS, r.as_quat())
+        expected = Rotation.concatenate(rots[max(0, k - 2):k + 1]).mean()  # chordal L2 mean
+        assert close_rotations(out, expected.as_quat())
+        assert out[3] >= 0.0 and np.isclose(np.linalg.norm(out), 1.0)
+
+
+def test_q_and_minus_q_count_alike():
+    window = RotationWindow(2, 0.051)
+    q = Rotation.from_rotvec([0.0, 0.0, 0.3]).as_quat()
+    p = Rotation.from_rotvec([0.0, 0.0, 0.5]).as_quat()
+    window(0, q)
+    out = window(DT_NS, -p)
+    assert close_rotations(out, Rotation.from_rotvec([0.0, 0.0, 0.4]).as_quat())
+
+
+def test_an_old_estimate_and_a_reset_leave_the_window():
+    window = RotationWindow(2, 0.051)
+    q = Rotation.from_rotvec([0.2, 0.0, 0.0]).as_quat()
+    p = Rotation.from_rotvec([0.0, 0.2, 0.0]).as_quat()
+    window(0, q)
+    np.testing.assert_array_equal(window(3 * DT_NS, p), p)  # a gap of two frames: q is too old
+    window.reset()
+    np.testing.assert_array_equal(window(4 * DT_NS, q), q)
+
+
+@pytest.mark.parametrize("frames, step", [(0, 0.05), (1.5, 0.05), (2, 0.0), (2, float("nan"))])
+def test_bad_settings_are_refused(frames, step):
+    with pytest.raises(ValueError):
+        RotationWindow(frames, step)
+
+
+def test_stamps_must_increase():
+    window = RotationWindow(2, 0.051)
+    window(DT_NS, np.array([0.0, 0.0, 0.0, 1.0]))
+    with pytest.raises(ValueError, match="not after"):
+        window(DT_NS, np.array([0.0, 0.0, 0.0, 1.0]))
