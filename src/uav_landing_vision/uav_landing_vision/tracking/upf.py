@@ -52,8 +52,8 @@ from .motion_bank import MotionBank
 from .optimisation import PFO, PSO, ConstrictedPSO, GAbF, PFOConfig, evaluate
 from .particles import ParticleSet
 from .refinement import RotationRefinement, RotationRefinementConfig
-from .smoothing import RotationWindow
 from .resampling import RESAMPLERS, fixed_size, resample
+from .smoothing import RotationWindow
 from .track_state import TrackMonitor, TrackState, TrackStateConfig
 
 ROTATION_FILTER = {"C3": "ukf", "C4": "ubif", "C5": "ubigaf"}  # Table 6.11
@@ -168,9 +168,10 @@ STAGES = ("prepare", "proposal", "measurement", "filtering", "weighting", "resam
 class TrackResult:
     """One frame's output. ``position``/``quat``: UAV body in the camera optical frame (NaN when
     there is no estimate): the particles' weighted mean or the best particle (``estimate``), its
-    rotation refined and averaged over the last ``rotation_window`` frames. ``covariance``: 6×6, ROS order (x, y, z, rot_x, rot_y, rot_z); the
-    rotation part is of the small rotation r with ``q_particle = exp(r) ⊗ q_estimate``, i.e.
-    about the camera's fixed axes (as ``PoseWithCovariance`` expects), in rad².
+    rotation refined and averaged over the last ``rotation_window`` frames. ``covariance``: 6×6,
+    ROS order (x, y, z, rot_x, rot_y, rot_z); the rotation part is of the small rotation r with
+    ``q_particle = exp(r) ⊗ q_estimate``, i.e. about the camera's fixed axes (as
+    ``PoseWithCovariance`` expects), in rad².
     ``best_likelihood``: the best particle's likelihood (before the rotation refinement); it
     drives the track state."""
 
