@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from uav_landing_vision.graph import GRAPH_NODES
+from uav_landing_vision.graph import GRAPH_NODES, ready_topics_parameter
 from uav_landing_vision.sim import read_pose_csv, read_poses
 from uav_landing_vision.sim.config import load_scenario
 from uav_landing_vision.sim.simulate import simulate
@@ -56,7 +56,9 @@ def graph_run(landing, tmp_path_factory, ros_domain_id):
            "--domain-id", str(ros_domain_id),
            "--param", "bag_player:ack_topic=uav/tracker_status",
            "--param", "bag_player:ack_type=uav_landing_msgs/msg/TrackerStatus",
-           # More than the shipped 3 s for the processes' DDS matching: a loaded CI machine.
+           # Every link discovered first (the models load for seconds), then more than the
+           # shipped 3 s for the processes' DDS matching: a loaded CI machine.
+           "--param", f"bag_player:ready_topics={ready_topics_parameter()}",
            "--param", "bag_player:ready_settle_s=6.0",
            "--param", f"evaluator:out_dir={report}",
            "--param", f"evaluator:variant={tracker.variant}N{tracker.iterations}"]

@@ -19,3 +19,16 @@ def test_every_subcommand_has_help(capsys):
 def test_demo_rejects_bad_frame_count():
     with pytest.raises(SystemExit):
         main(["demo", "--frames", "0"])
+
+
+def test_demo_replay_waits_for_every_link_of_the_graph(tmp_path):
+    """The demo's player override lists the pipeline's topics as a YAML list that ROS parses
+    into the string array ``ready_topics`` expects."""
+    import yaml
+
+    from uav_landing_vision.demo import graph_overrides
+    from uav_landing_vision.graph import PIPELINE_TOPICS
+
+    player = dict(graph_overrides(tmp_path / "bag", tmp_path / "report", "bag")["bag_player"])
+    assert yaml.safe_load(player["ready_topics"]) == list(PIPELINE_TOPICS)
+    assert {"/uav/pose_hypotheses", "/uav/tracker_status"} <= set(PIPELINE_TOPICS)

@@ -29,6 +29,26 @@ GRAPH_NODES = (
     "bag_player",  # started last: it waits for its subscribers, then plays
 )
 PLAYER = "bag_player"
+# Every link of the full graph. A replay that must not lose its first frames waits until each
+# has a publisher and a subscriber (bag_player ``ready_topics``): the detector and pose
+# boosting load their models for several seconds, longer than the player's settle time on a
+# loaded machine.
+PIPELINE_TOPICS = (
+    "/camera/image_raw",
+    "/camera/camera_info",
+    "/camera/image_rect",
+    "/camera/camera_info_rect",
+    "/uav/detections",
+    "/uav/pose_hypotheses",
+    "/uav/pose",
+    "/uav/tracker_status",
+    "/uav/ground_truth",
+)
+
+
+def ready_topics_parameter(topics=PIPELINE_TOPICS) -> str:
+    """``topics`` as the value of a ``-p ready_topics:=...`` override (a YAML list)."""
+    return "[" + ", ".join(f'"{t}"' for t in topics) + "]"
 _CLEAN_EXIT = (0, -signal.SIGINT, 128 + signal.SIGINT)
 _POLL_S = 0.1
 
