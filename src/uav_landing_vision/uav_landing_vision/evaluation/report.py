@@ -124,8 +124,9 @@ def load_summary(path) -> dict:
     return doc
 
 
-def write_report(out_dir, sequence: str, errors_by_variant: dict[str, dict[str, np.ndarray]]) -> str:
-    """Translation and rotation tables (text + CSV) and plots into ``out_dir``; returns the text."""
+def write_report(out_dir, sequence: str, errors_by_variant: dict[str, dict[str, np.ndarray]], appendix: str = "") -> str:
+    """Translation and rotation tables (text + CSV) and plots into ``out_dir``; ``appendix``
+    (e.g. a coverage table) ends ``tables.txt``. Returns the text of ``tables.txt``."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     parts = []
@@ -134,6 +135,6 @@ def write_report(out_dir, sequence: str, errors_by_variant: dict[str, dict[str, 
         parts.append(format_table(table, f"{sequence}: {kind} error ({unit})"))
         write_table_csv(out / f"{kind}_error.csv", table)
         plot_errors(out / f"{kind}_error.png", errors_by_variant, columns, unit)
-    text = "\n\n".join(parts)
+    text = "\n\n".join(parts + ([appendix] if appendix else []))
     (out / "tables.txt").write_text(text + "\n")
     return text

@@ -199,6 +199,14 @@ def scatter(q: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
     return weighted_outer(weights, q, q)
 
 
+def mean_rotation(q: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+    """Mean of the unit quaternions ``q (n, 4)``: the mode of the Bingham fitted to them
+    (C.8)–(C.9), i.e. the principal eigenvector of their scatter matrix, sign-canonical (w ≥ 0);
+    ``q`` and ``−q`` count alike."""
+    mean = np.linalg.eigh(scatter(q, weights))[1][:, -1]
+    return -mean if mean[3] < 0.0 else mean
+
+
 def weighted_outer(w: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """``Σ_n w_n x_n y_nᵀ`` over the second-to-last axis (a batched matrix product)."""
     return np.swapaxes(x * w[..., None], -1, -2) @ y

@@ -110,9 +110,7 @@ class EvaluatorNode(LandingNode):
         errors = pose_errors(truth.trans, truth.quat, est.trans, est.quat)
         out = Path(cfg.out_dir)
         coverage = self._coverage(truth, est)
-        text = write_report(out, cfg.sequence, {cfg.variant: errors}) + "\n\n" + coverage
-        with (out / "tables.txt").open("a") as tables:
-            tables.write(f"\n{coverage}\n")
+        text = write_report(out, cfg.sequence, {cfg.variant: errors}, appendix=coverage)
         save_summary(out / "summary.json", make_summary(cfg.sequence, len(truth.stamps_ns), {cfg.variant: variant_summary(errors)}))
         write_pose_csv(out / "estimates.csv", estimates)
         matched = int(np.isfinite(errors["euclidean"]).sum())

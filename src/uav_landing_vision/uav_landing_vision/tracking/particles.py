@@ -11,7 +11,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ..filters.bingham import scatter
+from ..filters.bingham import mean_rotation
 from ..geometry import quat_canonical
 
 _UNIT_TOL = 1e-6
@@ -123,8 +123,7 @@ class ParticleSet:
         weighted quaternions (C.8)–(C.9), i.e. the principal eigenvector of their scatter matrix
         (sign-free, so ``q`` and ``−q`` count alike)."""
         w = self.normalised_weights()
-        quat = np.linalg.eigh(scatter(self.quat, w))[1][:, -1]
-        return w @ self.pos, quat_canonical(quat)
+        return w @ self.pos, mean_rotation(self.quat, w)
 
     def best_index(self) -> int:
         """Index of the highest weight (the first on ties)."""

@@ -11,8 +11,7 @@ from collections import deque
 
 import numpy as np
 
-from ..filters.bingham import scatter
-from ..geometry import quat_canonical
+from ..filters.bingham import mean_rotation
 
 
 class RotationWindow:
@@ -43,4 +42,4 @@ class RotationWindow:
         quats = np.array([q for s, q in self._recent if s >= oldest])
         if len(quats) == 1:
             return quat.copy()
-        return quat_canonical(np.linalg.eigh(scatter(quats))[1][:, -1])
+        return mean_rotation(quats)
