@@ -44,13 +44,13 @@ PIPELINE_TOPICS = (
     "/uav/tracker_status",
     "/uav/ground_truth",
 )
+_CLEAN_EXIT = (0, -signal.SIGINT, 128 + signal.SIGINT)
+_POLL_S = 0.1
 
 
 def ready_topics_parameter(topics=PIPELINE_TOPICS) -> str:
     """``topics`` as the value of a ``-p ready_topics:=...`` override (a YAML list)."""
     return "[" + ", ".join(f'"{t}"' for t in topics) + "]"
-_CLEAN_EXIT = (0, -signal.SIGINT, 128 + signal.SIGINT)
-_POLL_S = 0.1
 
 
 def register(sub) -> None:
