@@ -41,6 +41,23 @@ def test_model_roi_of_a_turned_plate_is_the_roi_of_its_oriented_box():
     np.testing.assert_allclose(box[2] - box[0], 20 * np.sqrt(2), atol=1e-3)
 
 
+def test_model_roi_extent_skips_the_oriented_box_of_a_thin_tilted_outline():
+    # A thin wing tilted by 20° with a fin over its middle: the minimum-area box follows the
+    # wing, and its ROI takes in the empty corners above the wing's ends, so it is much taller
+    # than the outline's own extent (the far, tilted UAV of docs/detector.md).
+    a = np.radians(20.0)
+    along, across = np.array([np.cos(a), np.sin(a), 0.0]), np.array([-np.sin(a), np.cos(a), 0.0])
+    vertices = np.array([-1.0 * along, 1.0 * along, -1.0 * along + 0.02 * across, 1.0 * along + 0.02 * across,
+                         0.3 * across])
+    oriented = model_roi(vertices, K, IDENTITY, [0.0, 0.0, 10.0], 100, 80)
+    extent = model_roi(vertices, K, IDENTITY, [0.0, 0.0, 10.0], 100, 80, oriented=False)
+    np.testing.assert_allclose(extent, _opencv_extent(vertices, [0.0, 0.0, 10.0]), atol=1e-4)
+    assert np.all(oriented[:2] <= extent[:2] + 1e-4) and np.all(oriented[2:] >= extent[2:] - 1e-4)
+    # the oriented box is the wing's 20 × 3 px rectangle (fin included), turned by 20°
+    np.testing.assert_allclose(oriented[3] - oriented[1], 20 * np.sin(a) + 3 * np.cos(a), atol=1e-3)
+    assert (oriented[3] - oriented[1]) > 1.3 * (extent[3] - extent[1])
+
+
 def test_model_roi_is_clipped_to_the_image_and_none_out_of_view():
     vertices = _plate(1.0, 0.5)
     box = model_roi(vertices, K, IDENTITY, [4.5, -4.0, 10.0], 100, 80)  # u 85..105, v -5..5

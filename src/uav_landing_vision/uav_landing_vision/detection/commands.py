@@ -53,6 +53,9 @@ def register(sub) -> None:
     p.add_argument("--model", default="detector.onnx", help="shipped model name or path")
     p.add_argument("--threshold", type=float, default=0.5, help="operating score threshold")
     p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--truth-box", choices=("oriented", "extent"), default="oriented",
+                   help="ground-truth ROI: the ROI of the model's oriented box, as the training labels "
+                        "(Fig. 4.4), or the extent of the projected model")
     p.set_defaults(func=_evaluate)
 
 
@@ -109,7 +112,7 @@ def _evaluate(args) -> int:
 
     cfg = DetectorConfig(model=args.model, score_threshold=args.threshold, threads=args.threads)
     png = args.png or args.json.with_suffix(".png")
-    r = evaluate_bag(args.bag, cfg, args.json, png)
+    r = evaluate_bag(args.bag, cfg, args.json, png, truth_box=args.truth_box)
     print(f"AP50 {r['ap50']:.3f}  precision {r['precision']:.3f}  recall {r['recall']:.3f} at {r['threshold']}  "
           f"FP/100 frames {r['false_positives_per_100_frames']:.1f} (best box only "
           f"{r['best_box_false_positives_per_100_frames']:.1f})  median {r['ms_per_frame']:.1f} ms/frame")

@@ -77,7 +77,8 @@ class DatasetConfig:
             raise ValueError("landing frames need the 'normal' or 'complex' family")
 
 
-def model_roi(vertices: np.ndarray, K: np.ndarray, quat, trans, width: int, height: int) -> np.ndarray | None:
+def model_roi(vertices: np.ndarray, K: np.ndarray, quat, trans, width: int, height: int,
+              oriented: bool = True) -> np.ndarray | None:
     """Fig. 4.4 on the exact outline: the model's vertices projected at the pose (rectified
     pinhole ``K``), their convex hull clipped to the image → minimum-area oriented box →
     axis-aligned ROI ``[x0,y0,x1,y1]`` (pixel edges: pixel u covers [u, u+1)), clipped.
@@ -86,6 +87,10 @@ def model_roi(vertices: np.ndarray, K: np.ndarray, quat, trans, width: int, heig
     projected model is the hull of its vertices; this is the §4.2.2 label of a silhouette drawn
     at unlimited resolution, so wings thinner than a pixel still count. None if the model is
     out of view or reaches behind the camera.
+
+    ``oriented=False`` skips the oriented box: the ROI is then the extent of the clipped hull,
+    the smallest axis-aligned box that holds the projected model. For a thin, tilted UAV the
+    two differ widely (docs/detector.md, "Oriented and extent boxes").
     """
     from ..render.boxes import pose_matrices, project_points
 
@@ -99,7 +104,8 @@ def model_roi(vertices: np.ndarray, K: np.ndarray, quat, trans, width: int, heig
     area, clipped = cv2.intersectConvexConvex(hull, frame)
     if area <= 0 or clipped is None:
         return None
-    corners = cv2.boxPoints(cv2.minAreaRect(clipped.reshape(-1, 2))) + 0.5
+    outline = clipped.reshape(-1, 2)
+    corners = (cv2.boxPoints(cv2.minAreaRect(outline)) if oriented else outline) + 0.5
     x0, y0 = np.maximum(corners.min(axis=0), 0.0)
     x1, y1 = np.minimum(corners.max(axis=0), (width, height))
     if x1 <= x0 or y1 <= y0:

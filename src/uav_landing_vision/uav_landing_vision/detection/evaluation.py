@@ -2,8 +2,8 @@
 
 The ground-truth ROI of each frame comes from the bag's ground-truth pose: the model is
 projected at that pose in the rectified camera and labelled as in Fig. 4.4 (outline →
-oriented box → axis-aligned ROI, :func:`.dataset.model_roi`), as the training data are.
-Frames are undistorted first, as the node graph does before detection.
+oriented box → axis-aligned ROI, :func:`.dataset.model_roi`), as the training data are, or,
+on request, as the extent of the projected model. Frames are undistorted first, as the node graph does before detection.
 """
 
 import json
@@ -103,9 +103,15 @@ def plot_pr(result: dict, path, title: str) -> None:
     plt.close(fig)
 
 
-def evaluate_bag(bag, config, json_path, png_path=None, progress: bool = True) -> dict:
+TRUTH_BOXES = ("oriented", "extent")
+
+
+def evaluate_bag(bag, config, json_path, png_path=None, progress: bool = True, truth_box: str = "oriented") -> dict:
     """Run the detector (``config``: :class:`.detector.DetectorConfig`, its threshold the operating
-    point) over a simulated bag; write the metrics JSON (and PR curve PNG)."""
+    point) over a simulated bag; write the metrics JSON (and PR curve PNG).
+
+    ``truth_box``: ``oriented`` labels the truth as the training data are (Fig. 4.4);
+    ``extent`` takes the extent of the projected model instead (:func:`.dataset.model_roi`)."""
     from dataclasses import replace
 
     from tqdm import tqdm
@@ -115,6 +121,8 @@ def evaluate_bag(bag, config, json_path, png_path=None, progress: bool = True) -
     from .dataset import model_roi
     from .detector import Detector
 
+    if truth_box not in TRUTH_BOXES:
+        raise ValueError(f"truth_box must be one of {TRUTH_BOXES}, got {truth_box!r}")
     camera = read_camera(bag)
     rect = camera.rectified()
     map1, map2 = camera.undistortion_maps()
@@ -128,14 +136,14 @@ def evaluate_bag(bag, config, json_path, png_path=None, progress: bool = True) -
         if stamp not in truth:
             raise ValueError(f"{bag}: frame {stamp} has no ground-truth pose")
         image = cv2.remap(raw, map1, map2, cv2.INTER_LINEAR)
-        box = model_roi(vertices, rect.K, *truth[stamp], rect.width, rect.height)
+        box = model_roi(vertices, rect.K, *truth[stamp], rect.width, rect.height, oriented=truth_box == "oriented")
         t0 = time.perf_counter()
         det = detector.detect(image)
         ms = 1000.0 * (time.perf_counter() - t0)
         frames.append({"boxes": det.boxes, "scores": det.scores, "ms": ms,
                        "gt": np.zeros((0, 4)) if box is None else box[None]})
     result = summarise(frames, config.score_threshold)
-    result.update(bag=str(bag), model=str(config.model))
+    result.update(bag=str(bag), model=str(config.model), truth_box=truth_box)
     Path(json_path).parent.mkdir(parents=True, exist_ok=True)
     Path(json_path).write_text(json.dumps({k: v for k, v in result.items() if k != "curve"}, indent=2))
     if png_path:
