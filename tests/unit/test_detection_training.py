@@ -200,3 +200,37 @@ def test_training_uses_every_folder_and_resumes_only_with_its_own_settings(tmp_p
                if "running" not in k and "num_batches" not in k)  # BatchNorm statistics move
     with pytest.raises(FileNotFoundError, match="to start from"):
         train(TrainConfig(**{**tuned.__dict__, "init": str(tmp_path / "none.pt")}), progress=False)
+
+
+def test_fine_tuning_starts_from_an_exported_model(tmp_path):
+    """weights_from_onnx unfolds an export's BatchNorms: with them frozen (set_training) the torch
+    network computes the model's outputs, and training steps leave their statistics alone."""
+    import onnxruntime as ort
+
+    from uav_landing_vision.detection.train import set_training, weights_from_onnx
+
+    torch.manual_seed(1)
+    net = UavDetectorNet(width=16, blocks=(1, 1, 1))
+    with torch.no_grad():  # statistics and scales far from the identity, so the folding matters
+        for m in net.modules():
+            if isinstance(m, torch.nn.BatchNorm2d):
+                m.running_mean.uniform_(-0.5, 0.5)
+                m.running_var.uniform_(0.5, 2.0)
+                m.weight.uniform_(0.5, 1.5)
+                m.bias.uniform_(-0.2, 0.2)
+    path = export_onnx(net.eval(), tmp_path / "det.onnx", (640, 384))
+    x = torch.rand(1, 3, 96, 160)
+    expected = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"]).run(None, {"images": x.numpy()})
+
+    tuned = UavDetectorNet(width=16, blocks=(1, 1, 1))
+    tuned.load_state_dict(weights_from_onnx(path, tuned))
+    set_training(tuned, frozen_normalisation=True)
+    for o, t in zip(expected, tuned(x)):
+        np.testing.assert_allclose(t.detach().numpy(), o, atol=1e-4)
+    stats = {k: v.clone() for k, v in tuned.state_dict().items() if "running" in k}
+    tuned(torch.rand(2, 3, 96, 160)).__getitem__(0).sum().backward()
+    assert all(torch.equal(tuned.state_dict()[k], v) for k, v in stats.items())
+
+    with pytest.raises(ValueError, match="no convolution"):
+        other = UavDetectorNet(width=24, blocks=(1, 1, 1))
+        weights_from_onnx(path, other)

@@ -21,6 +21,8 @@ def register(sub) -> None:
                    help="fraction of head-on approach attitudes (default: 0; the rest landing-like/random)")
     p.add_argument("--landing-fraction", type=float, default=0.0,
                    help="fraction of frames of simulated landings (default: 0)")
+    p.add_argument("--label-box", choices=("oriented", "extent"), default="oriented",
+                   help="label: the ROI of the oriented box (Fig. 4.4, default) or the model's projected extent")
     p.add_argument("--workers", type=int, default=1, help="processes generating in parallel (default: 1)")
     p.set_defaults(func=_make_data)
 
@@ -39,7 +41,8 @@ def register(sub) -> None:
     p.add_argument("--loader-workers", type=int, default=0, help="image-decoding processes (default: 0)")
     p.add_argument("--max-images", type=int, default=0, help="use the first N images of each folder only (0: all)")
     p.add_argument("--init", type=Path, default=None,
-                   help="start from the network of this checkpoint (another run's last.pt): fine-tuning")
+                   help="start from this network (fine-tuning): another run's last.pt, or an exported .onnx of the "
+                        "same width, whose folded batch normalisation then stays frozen")
     p.add_argument("--resume", action="store_true", help="continue from OUT/last.pt")
     p.add_argument("--export", type=Path, default=None, help="ONNX path (default: OUT/detector.onnx)")
     p.add_argument("--export-only", action="store_true",
@@ -66,7 +69,7 @@ def _make_data(args) -> int:
     try:
         cfg = DatasetConfig(count=args.count, seed=args.seed, families=families, image_dir=args.images,
                             video=args.video, camera_info=args.camera, approach_fraction=args.approach_fraction,
-                            landing_fraction=args.landing_fraction)
+                            landing_fraction=args.landing_fraction, label_box=args.label_box)
         summary = generate(cfg, args.out, workers=args.workers)
     except (ValueError, FileExistsError) as exc:
         raise SystemExit(f"make-detection-data: {exc}") from None

@@ -51,6 +51,9 @@ class DatasetConfig:
     # This fraction of images are frames of simulated landings of the family's scenario
     # (:class:`LandingFrames`); they always hold the UAV (negatives come from the rest).
     landing_fraction: float = 0.0
+    # Label: "oriented" is Fig. 4.4 (outline → minimum-area oriented box → its axis-aligned ROI);
+    # "extent" is the projected model's own extent (model_roi, docs/detector.md).
+    label_box: str = "oriented"
     coverage_threshold: float = 0.5  # binarisation of the rendered coverage (the visibility test)
     min_visible_px: int = 4
     noise_sigma: tuple[float, float] = (0.0, 6.0)
@@ -73,6 +76,8 @@ class DatasetConfig:
             raise ValueError(f"approach_fraction must be in [0, 1], got {self.approach_fraction}")
         if not 0 <= self.landing_fraction <= 1:
             raise ValueError(f"landing_fraction must be in [0, 1], got {self.landing_fraction}")
+        if self.label_box not in ("oriented", "extent"):
+            raise ValueError(f"label_box must be 'oriented' or 'extent', got {self.label_box!r}")
         if self.landing_fraction and not {"normal", "complex"} & set(self.families):
             raise ValueError("landing frames need the 'normal' or 'complex' family")
 
@@ -263,6 +268,7 @@ class LandingFrames:
         from ..sim.synthesis import FrameSynthesizer
 
         self.vertices, self.K, self.size = mesh.vertices, rectified.K, (rectified.width, rectified.height)
+        self.oriented = cfg.label_box == "oriented"
         self.families, self.parts = [], {}
         for fam in ("normal", "complex"):
             if fam not in cfg.families:
@@ -302,7 +308,7 @@ class LandingFrames:
         bg = background.frame(k, float(traj.times_s[k]), traj.cam_rot[k], traj.cam_pos[k])
         raw, _ = synth.frame(bg, traj.quat[k], traj.trans[k], traj.cam_rot[k].T @ sun, shift, rng)
         image = cv2.remap(raw, map1, map2, cv2.INTER_LINEAR)
-        box = model_roi(self.vertices, self.K, traj.quat[k], traj.trans[k], *self.size)
+        box = model_roi(self.vertices, self.K, traj.quat[k], traj.trans[k], *self.size, oriented=self.oriented)
         return image, box, (traj.quat[k], traj.trans[k])
 
 
@@ -335,7 +341,7 @@ class SampleGenerator:
                 rgb, alpha = self.renderer.shaded(quat, trans, image, albedo=tuple(albedo), light_dir=light)
                 if np.count_nonzero(alpha >= cfg.coverage_threshold) >= cfg.min_visible_px:
                     box = model_roi(self.mesh.vertices, self.camera.K, quat, trans, self.camera.width,
-                                    self.camera.height)
+                                    self.camera.height, oriented=cfg.label_box == "oriented")
                 if box is not None:
                     image = rgb
                     break

@@ -42,7 +42,9 @@ class TrainConfig:
     threads: int = 2
     loader_workers: int = 0  # processes decoding images alongside the training (0: in the loop)
     max_images: int = 0  # use only the first N images of each folder (0: all)
-    init: str = ""  # a checkpoint (last.pt) whose network weights start this run (fine-tuning)
+    # Weights that start this run (fine-tuning): another run's checkpoint (last.pt), or an exported
+    # model (.onnx), whose normalisation is folded into its convolutions (see weights_from_onnx).
+    init: str = ""
 
     def __post_init__(self):
         if (self.epochs < 1 or self.batch < 1 or self.lr <= 0 or self.width < 8 or self.threads < 1
@@ -208,7 +210,7 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
 
     net = UavDetectorNet(cfg.width)
     if cfg.init and not resume:
-        net.load_state_dict(initial_weights(cfg.init))
+        net.load_state_dict(initial_weights(cfg.init, net))
     optim = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     total = cfg.epochs * len(train_loader)
     warm = max(1, total // 20)
@@ -225,7 +227,8 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
         torch.set_rng_state(state["torch_rng"])
         start_epoch, log = state["epoch"] + 1, state["log"]
 
-    net.train()
+    frozen = folded_normalisation(cfg)
+    set_training(net, frozen)
     for epoch in range(start_epoch, cfg.epochs):
         train_set.epoch = epoch
         t0, totals, n = time.perf_counter(), np.zeros(3), 0
@@ -242,6 +245,7 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
             bar.set_postfix(loss=f"{totals[0] / n:.3f}")
         seconds = time.perf_counter() - t0
         ap50 = validate(net, val_loader)
+        set_training(net, frozen)
         log["epochs"].append({"epoch": epoch + 1, "loss": totals[0] / max(n, 1), "obj": totals[1] / max(n, 1),
                               "box": totals[2] / max(n, 1), "val_ap50": ap50, "seconds": seconds,
                               "images_per_s": len(train_set) / seconds})
@@ -254,12 +258,73 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
     return log
 
 
-def initial_weights(path) -> dict:
-    """The network weights of another run's checkpoint, to fine-tune from."""
+def folded_normalisation(cfg: TrainConfig) -> bool:
+    """Whether the run starts from an exported model: its batch normalisation then stays frozen."""
+    return Path(cfg.init).suffix == ".onnx"
+
+
+def set_training(net: UavDetectorNet, frozen_normalisation: bool) -> None:
+    """Training mode; with ``frozen_normalisation`` the BatchNorm layers keep their running
+    statistics and normalise with them (their scale and shift still learn)."""
+    net.train()
+    if frozen_normalisation:
+        for module in net.modules():
+            if isinstance(module, torch.nn.BatchNorm2d):
+                module.eval()
+
+
+def initial_weights(path, net: UavDetectorNet) -> dict:
+    """The weights to fine-tune ``net`` from: another run's checkpoint or an exported model."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no checkpoint {path} to start from")
+    if path.suffix == ".onnx":
+        return weights_from_onnx(path, net)
     return torch.load(path, weights_only=False)["net"]
+
+
+def weights_from_onnx(path, net: UavDetectorNet) -> dict:
+    """``net``'s state dict holding the weights of an exported model of the same architecture.
+
+    The export folds each BatchNorm into the convolution before it (weight ``W``, new bias
+    ``b``). Here the convolution takes ``W`` and the BatchNorm becomes the identity plus ``b``
+    (running mean 0, variance 1, scale √(1 + eps)), so the network computes what the model does
+    as long as that BatchNorm is in eval mode (:func:`set_training`). Each ONNX convolution is
+    matched to the module named by its weight; the exporter may share equal biases between
+    convolutions, so those are read through the node's inputs."""
+    import onnx
+    from onnx import numpy_helper
+
+    graph = onnx.load(str(path)).graph
+    arrays = {i.name: numpy_helper.to_array(i) for i in graph.initializer}
+    convs = {}
+    for node in graph.node:
+        if node.op_type == "Conv" and len(node.input) == 3 and node.input[1].endswith(".weight"):
+            convs[node.input[1].removesuffix(".weight")] = (arrays[node.input[1]], arrays[node.input[2]])
+    state = {k: v.clone() for k, v in net.state_dict().items()}
+    modules = dict(net.named_modules())
+    for name, module in modules.items():
+        if not isinstance(module, torch.nn.Conv2d):
+            continue
+        weight, bias = convs.pop(name, (None, None))
+        if weight is None or weight.shape != tuple(state[f"{name}.weight"].shape):
+            raise ValueError(f"{path}: no convolution {name} of shape {tuple(state[f'{name}.weight'].shape)}")
+        state[f"{name}.weight"] = torch.from_numpy(weight.copy())
+        bias = torch.from_numpy(bias.copy())
+        if module.bias is not None:
+            state[f"{name}.bias"] = bias
+            continue
+        parent, _, index = name.rpartition(".")
+        norm = f"{parent}.{int(index) + 1}"  # conv_bn: Conv2d, then its BatchNorm2d
+        if not isinstance(modules.get(norm), torch.nn.BatchNorm2d):
+            raise ValueError(f"{name} has no bias and no BatchNorm after it")
+        state[f"{norm}.weight"] = torch.full_like(bias, float(np.sqrt(1.0 + modules[norm].eps)))
+        state[f"{norm}.bias"] = bias
+        state[f"{norm}.running_mean"] = torch.zeros_like(bias)
+        state[f"{norm}.running_var"] = torch.ones_like(bias)
+    if convs:
+        raise ValueError(f"{path}: convolutions this network does not have: {sorted(convs)[:5]}")
+    return state
 
 
 def load_checkpoint(cfg: TrainConfig) -> dict:
