@@ -27,6 +27,7 @@ from ..geometry import euler_zyx_to_matrix, matrix_to_quat, quat_multiply, quat_
 
 FAMILIES = ("normal", "complex", "images", "video")
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp")
+LABEL_BOXES = ("oriented", "extent")  # model_roi with oriented=True / False
 
 
 @dataclass(frozen=True)
@@ -76,8 +77,8 @@ class DatasetConfig:
             raise ValueError(f"approach_fraction must be in [0, 1], got {self.approach_fraction}")
         if not 0 <= self.landing_fraction <= 1:
             raise ValueError(f"landing_fraction must be in [0, 1], got {self.landing_fraction}")
-        if self.label_box not in ("oriented", "extent"):
-            raise ValueError(f"label_box must be 'oriented' or 'extent', got {self.label_box!r}")
+        if self.label_box not in LABEL_BOXES:
+            raise ValueError(f"label_box must be one of {LABEL_BOXES}, got {self.label_box!r}")
         if self.landing_fraction and not {"normal", "complex"} & set(self.families):
             raise ValueError("landing frames need the 'normal' or 'complex' family")
 

@@ -3,7 +3,8 @@
 The ground-truth ROI of each frame comes from the bag's ground-truth pose: the model is
 projected at that pose in the rectified camera and labelled as in Fig. 4.4 (outline →
 oriented box → axis-aligned ROI, :func:`.dataset.model_roi`), as the training data are, or,
-on request, as the extent of the projected model. Frames are undistorted first, as the node graph does before detection.
+on request, as the extent of the projected model. Frames are undistorted first, as the node
+graph does before detection.
 """
 
 import json
@@ -13,6 +14,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from .dataset import LABEL_BOXES, model_roi
 from .detector import box_iou
 
 WIDTH_BUCKETS = (0, 8, 16, 32, 64, 128, 256, 100000)  # px edges of the GT-width buckets
@@ -103,9 +105,6 @@ def plot_pr(result: dict, path, title: str) -> None:
     plt.close(fig)
 
 
-TRUTH_BOXES = ("oriented", "extent")
-
-
 def evaluate_bag(bag, config, json_path, png_path=None, progress: bool = True, truth_box: str = "oriented") -> dict:
     """Run the detector (``config``: :class:`.detector.DetectorConfig`, its threshold the operating
     point) over a simulated bag; write the metrics JSON (and PR curve PNG).
@@ -118,11 +117,10 @@ def evaluate_bag(bag, config, json_path, png_path=None, progress: bool = True, t
 
     from ..model import fixed_wing_mesh
     from ..sim.bag import iter_frames, read_camera, read_poses
-    from .dataset import model_roi
     from .detector import Detector
 
-    if truth_box not in TRUTH_BOXES:
-        raise ValueError(f"truth_box must be one of {TRUTH_BOXES}, got {truth_box!r}")
+    if truth_box not in LABEL_BOXES:
+        raise ValueError(f"truth_box must be one of {LABEL_BOXES}, got {truth_box!r}")
     camera = read_camera(bag)
     rect = camera.rectified()
     map1, map2 = camera.undistortion_maps()
