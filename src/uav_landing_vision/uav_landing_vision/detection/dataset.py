@@ -82,6 +82,11 @@ class DatasetConfig:
         if self.landing_fraction and not {"normal", "complex"} & set(self.families):
             raise ValueError("landing frames need the 'normal' or 'complex' family")
 
+    @property
+    def oriented_labels(self) -> bool:
+        """Whether labels are Fig. 4.4's oriented-box ROIs (else the model's extent)."""
+        return self.label_box == "oriented"
+
 
 def model_roi(vertices: np.ndarray, K: np.ndarray, quat, trans, width: int, height: int,
               oriented: bool = True) -> np.ndarray | None:
@@ -269,7 +274,7 @@ class LandingFrames:
         from ..sim.synthesis import FrameSynthesizer
 
         self.vertices, self.K, self.size = mesh.vertices, rectified.K, (rectified.width, rectified.height)
-        self.oriented = cfg.label_box == "oriented"
+        self.oriented = cfg.oriented_labels
         self.families, self.parts = [], {}
         for fam in ("normal", "complex"):
             if fam not in cfg.families:
@@ -342,7 +347,7 @@ class SampleGenerator:
                 rgb, alpha = self.renderer.shaded(quat, trans, image, albedo=tuple(albedo), light_dir=light)
                 if np.count_nonzero(alpha >= cfg.coverage_threshold) >= cfg.min_visible_px:
                     box = model_roi(self.mesh.vertices, self.camera.K, quat, trans, self.camera.width,
-                                    self.camera.height, oriented=cfg.label_box == "oriented")
+                                    self.camera.height, oriented=cfg.oriented_labels)
                 if box is not None:
                     image = rgb
                     break

@@ -165,7 +165,8 @@ def detection_loss(outputs, targets, alpha: float = 0.25, gamma: float = 2.0):
 
 
 def validate(net, loader, threshold: float = 0.01) -> float:
-    """AP50 of the network on a loader (numpy decode + NMS, as the runtime)."""
+    """AP50 of the network on a loader (numpy decode + NMS, as the runtime); leaves the network
+    in eval mode, and the training loop restores its training mode (:func:`set_training`)."""
     net.eval()
     scores, tps, n_gt = [], [], 0
     with torch.no_grad():
@@ -179,7 +180,6 @@ def validate(net, loader, threshold: float = 0.01) -> float:
                 scores.append(ps[keep])
                 tps.append(tp)
                 n_gt += len(gt)
-    net.train()
     return average_precision(np.concatenate(scores), np.concatenate(tps), n_gt)[0] if scores else 0.0
 
 
