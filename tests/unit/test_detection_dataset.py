@@ -151,9 +151,32 @@ def test_landing_frames_are_labelled_where_the_model_projects_through_the_lens()
     assert 5.0 < min(ranges) and max(ranges) < 105.0  # along the scenario's approach
 
 
+def test_landing_negatives_are_the_same_frame_without_the_uav():
+    """A landing frame drawn without the UAV is, from the same generator state, the frame with it
+    outside the UAV's box, and carries no label."""
+    from uav_landing_vision.detection.dataset import LandingFrames, dataset_camera
+    from uav_landing_vision.model import fixed_wing_mesh
+
+    cfg = DatasetConfig(families=("normal",), banks_per_family=1, landing_fraction=1.0)
+    frames = LandingFrames(cfg, dataset_camera(cfg), fixed_wing_mesh("high"))
+    for seed in (5, 6):
+        with_uav, box, pose = frames.sample(np.random.default_rng(seed))
+        without, no_box, same_pose = frames.sample(np.random.default_rng(seed), with_uav=False)
+        assert no_box is None and box is not None
+        np.testing.assert_array_equal(pose[1], same_pose[1])
+        x0, y0, x1, y1 = np.round(box).astype(int)
+        outside = np.ones(with_uav.shape[:2], bool)
+        outside[max(y0 - 12, 0) : y1 + 12, max(x0 - 12, 0) : x1 + 12] = False  # blur and lens margin
+        np.testing.assert_array_equal(with_uav[outside], without[outside])
+        inside = (slice(y0, y1), slice(x0, x1))
+        assert np.abs(with_uav[inside].astype(int) - without[inside]).max() > 30  # the UAV is drawn
+
+
 def test_landing_frames_need_a_simulator_family_and_the_scenario_camera(tmp_path):
     with pytest.raises(ValueError, match="landing_fraction"):
         DatasetConfig(landing_fraction=-0.1)
+    with pytest.raises(ValueError, match="landing_negative_fraction"):
+        DatasetConfig(landing_fraction=0.5, landing_negative_fraction=1.5)
     with pytest.raises(ValueError, match="'normal' or 'complex'"):
         DatasetConfig(families=("images",), image_dir=str(tmp_path), landing_fraction=0.5)
     camera = CameraModel(192, 108, np.array([[165.0, 0, 96.0], [0, 165.0, 54.0], [0, 0, 1]]))

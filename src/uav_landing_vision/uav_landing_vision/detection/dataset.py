@@ -5,7 +5,8 @@ random direction at a random time, a random crop/flip of a user image, or a fram
 video), the UAV shaded at a random pose 5–150 m away (sometimes partly out of the frame, or
 absent: a negative), then photometric jitter, blur, noise and JPEG coding. A configurable
 fraction are instead frames of simulated landings (:class:`LandingFrames`), made and
-undistorted exactly as the evaluation's sequences, with jitter and coding on top. The label comes
+undistorted exactly as the evaluation's sequences, with jitter and coding on top; a configurable
+fraction of those leave the UAV out (negatives of the landing's own sky and sea). The label comes
 from the model at the drawn pose as Fig. 4.4 (silhouette → oriented box → axis-aligned ROI),
 the silhouette's outline taken exactly from the projected model (:func:`model_roi`); a pose
 is labelled when at least ``min_visible_px`` pixels of its rendered coverage pass
@@ -50,8 +51,12 @@ class DatasetConfig:
     # z axes from facing the camera) and 40 % uniformly random.
     approach_fraction: float = 0.0
     # This fraction of images are frames of simulated landings of the family's scenario
-    # (:class:`LandingFrames`); they always hold the UAV (negatives come from the rest).
+    # (:class:`LandingFrames`).
     landing_fraction: float = 0.0
+    # Of those landing frames, this fraction leaves the UAV out: the landing's sky and sea as
+    # the deck camera sees them (negatives where the graph looks; the other negatives are
+    # random views of the backgrounds).
+    landing_negative_fraction: float = 0.0
     # Label: "oriented" is Fig. 4.4 (outline → minimum-area oriented box → its axis-aligned ROI);
     # "extent" is the projected model's own extent (model_roi, docs/detector.md).
     label_box: str = "oriented"
@@ -77,6 +82,8 @@ class DatasetConfig:
             raise ValueError(f"approach_fraction must be in [0, 1], got {self.approach_fraction}")
         if not 0 <= self.landing_fraction <= 1:
             raise ValueError(f"landing_fraction must be in [0, 1], got {self.landing_fraction}")
+        if not 0 <= self.landing_negative_fraction <= 1:
+            raise ValueError(f"landing_negative_fraction must be in [0, 1], got {self.landing_negative_fraction}")
         if self.label_box not in LABEL_BOXES:
             raise ValueError(f"label_box must be one of {LABEL_BOXES}, got {self.label_box!r}")
         if self.landing_fraction and not {"normal", "complex"} & set(self.families):
@@ -297,9 +304,10 @@ class LandingFrames:
             self.families.append(fam)
             self.parts[fam] = (scenario, synth, banks, camera.undistortion_maps())
 
-    def sample(self, rng: np.random.Generator):
-        """An undistorted landing frame (RGB uint8), its ROI (None if the UAV is not in view) and
-        the true pose ``(quat, trans)`` in the camera frame."""
+    def sample(self, rng: np.random.Generator, with_uav: bool = True):
+        """An undistorted landing frame (RGB uint8), its ROI (None if the UAV is not in view or
+        left out) and the true pose ``(quat, trans)`` in the camera frame (where the UAV is, drawn
+        or not)."""
         from ..sim.simulate import generators, make_trajectory
 
         scenario, synth, banks, (map1, map2) = self.parts[self.families[rng.integers(len(self.families))]]
@@ -312,9 +320,13 @@ class LandingFrames:
         shift *= min(1.0, scenario.imaging.max_blur_px / max(float(np.linalg.norm(shift)), 1e-9))
         background.jitter_rng = rng
         bg = background.frame(k, float(traj.times_s[k]), traj.cam_rot[k], traj.cam_pos[k])
-        raw, _ = synth.frame(bg, traj.quat[k], traj.trans[k], traj.cam_rot[k].T @ sun, shift, rng)
+        if with_uav:
+            raw, _ = synth.frame(bg, traj.quat[k], traj.trans[k], traj.cam_rot[k].T @ sun, shift, rng)
+        else:
+            raw = synth.sensor(bg, rng)
         image = cv2.remap(raw, map1, map2, cv2.INTER_LINEAR)
-        box = model_roi(self.vertices, self.K, traj.quat[k], traj.trans[k], *self.size, oriented=self.oriented)
+        box = model_roi(self.vertices, self.K, traj.quat[k], traj.trans[k], *self.size,
+                        oriented=self.oriented) if with_uav else None
         return image, box, (traj.quat[k], traj.trans[k])
 
 
@@ -336,7 +348,9 @@ class SampleGenerator:
         cfg, rng = self.cfg, image_rng(self.cfg.seed, index)
         # Drawn only when landing frames are asked for: datasets made without them keep their images.
         if self.landing is not None and rng.random() < cfg.landing_fraction:
-            image, box, _ = self.landing.sample(rng)
+            # Drawn only when asked for, as above.
+            with_uav = not (cfg.landing_negative_fraction and rng.random() < cfg.landing_negative_fraction)
+            image, box, _ = self.landing.sample(rng, with_uav)
             return photometric(image, rng, cfg), box
         image, box = self.backgrounds.draw(rng), None
         if rng.random() >= cfg.negative_fraction:

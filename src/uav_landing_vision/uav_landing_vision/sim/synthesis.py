@@ -69,9 +69,12 @@ class FrameSynthesizer:
             layer = cv2.filter2D(layer, -1, kernel, borderType=cv2.BORDER_CONSTANT)
             alpha = cv2.filter2D(alpha, -1, kernel, borderType=cv2.BORDER_CONSTANT)
             rgb = np.clip(layer + (1.0 - alpha[..., None]) * bg + 0.5, 0, 255).astype(np.uint8)
-        raw = cv2.remap(rgb, self.map1, self.map2, cv2.INTER_LINEAR)
-        raw_alpha = cv2.remap(alpha, self.map1, self.map2, cv2.INTER_LINEAR)
-        if im.noise_sigma > 0:
-            noise = rng.standard_normal(raw.shape, dtype=np.float32) * np.float32(im.noise_sigma)
+        return self.sensor(rgb, rng), cv2.remap(alpha, self.map1, self.map2, cv2.INTER_LINEAR)
+
+    def sensor(self, scene: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """The raw frame (lens distortion, sensor noise) of a scene drawn for :attr:`render_camera`."""
+        raw = cv2.remap(scene, self.map1, self.map2, cv2.INTER_LINEAR)
+        if self.imaging.noise_sigma > 0:
+            noise = rng.standard_normal(raw.shape, dtype=np.float32) * np.float32(self.imaging.noise_sigma)
             raw = np.clip(raw + noise + 0.5, 0, 255).astype(np.uint8)
-        return raw, raw_alpha
+        return raw
