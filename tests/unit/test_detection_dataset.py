@@ -172,6 +172,22 @@ def test_landing_negatives_are_the_same_frame_without_the_uav():
         assert np.abs(with_uav[inside].astype(int) - without[inside]).max() > 30  # the UAV is drawn
 
 
+def test_landing_frames_keep_their_scenarios_sun_within_the_spread():
+    from uav_landing_vision.detection.dataset import LandingFrames, dataset_camera
+    from uav_landing_vision.model import fixed_wing_mesh
+    from uav_landing_vision.sim.config import load_scenario
+
+    cfg = DatasetConfig(families=("complex",), banks_per_family=3, landing_fraction=1.0, landing_sun_spread_deg=20.0)
+    banks = LandingFrames(cfg, dataset_camera(cfg), fixed_wing_mesh("low")).parts["complex"][2]
+    scenario_az = load_scenario("complex").background.sun_azimuth_deg
+    for _, sun in banks:
+        off = (np.degrees(np.arctan2(sun[1], sun[0])) - scenario_az + 180.0) % 360.0 - 180.0
+        assert abs(off) <= 20.0
+        assert 1.0 <= np.degrees(np.arcsin(sun[2])) <= 12.0
+    with pytest.raises(ValueError, match="landing_sun_spread_deg"):
+        DatasetConfig(landing_sun_spread_deg=0.0)
+
+
 def test_landing_frames_need_a_simulator_family_and_the_scenario_camera(tmp_path):
     with pytest.raises(ValueError, match="landing_fraction"):
         DatasetConfig(landing_fraction=-0.1)

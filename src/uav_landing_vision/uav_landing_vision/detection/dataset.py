@@ -57,6 +57,9 @@ class DatasetConfig:
     # the deck camera sees them (negatives where the graph looks; the other negatives are
     # random views of the backgrounds).
     landing_negative_fraction: float = 0.0
+    # Landing frames' sun azimuth: the scenario's own ± this (180: any azimuth). The elevation is
+    # drawn as for the random views.
+    landing_sun_spread_deg: float = 180.0
     # Label: "oriented" is Fig. 4.4 (outline → minimum-area oriented box → its axis-aligned ROI);
     # "extent" is the projected model's own extent (model_roi, docs/detector.md).
     label_box: str = "oriented"
@@ -82,6 +85,8 @@ class DatasetConfig:
             raise ValueError(f"approach_fraction must be in [0, 1], got {self.approach_fraction}")
         if not 0 <= self.landing_fraction <= 1:
             raise ValueError(f"landing_fraction must be in [0, 1], got {self.landing_fraction}")
+        if not 0 < self.landing_sun_spread_deg <= 180:
+            raise ValueError(f"landing_sun_spread_deg must be in (0, 180], got {self.landing_sun_spread_deg}")
         if not 0 <= self.landing_negative_fraction <= 1:
             raise ValueError(f"landing_negative_fraction must be in [0, 1], got {self.landing_negative_fraction}")
         if self.label_box not in LABEL_BOXES:
@@ -269,7 +274,8 @@ class LandingFrames:
     Each frame: a new landing of the family's shipped scenario (seed drawn from the image's
     generator, ≥ :data:`LANDING_SEED_MIN`), one of its frames at random, drawn as the
     simulator draws it (render camera, motion blur, lens distortion, sensor noise) over one of
-    ``banks_per_family`` backgrounds with a random sun, then undistorted as the graph does. Its
+    ``banks_per_family`` backgrounds with a random sun (its azimuth within
+    ``landing_sun_spread_deg`` of the scenario's), then undistorted as the graph does. Its
     label is :func:`model_roi` at the true pose in the rectified camera, as ``eval-detector``
     labels a bag.
     """
@@ -296,7 +302,9 @@ class LandingFrames:
             banks = []
             for seed in np.random.SeedSequence([cfg.seed, 1 << 31, FAMILIES.index(fam)]).spawn(cfg.banks_per_family):
                 rng = np.random.default_rng(seed)
-                az, el = rng.uniform(-180, 180), rng.uniform(5, 45) if fam == "normal" else rng.uniform(1, 12)
+                spread = cfg.landing_sun_spread_deg
+                az = rng.uniform(-spread, spread) + (scenario.background.sun_azimuth_deg if spread < 180 else 0.0)
+                el = rng.uniform(5, 45) if fam == "normal" else rng.uniform(1, 12)
                 bcfg = replace(scenario.background, sun_azimuth_deg=float(az), sun_elevation_deg=float(el))
                 az, el = np.radians([az, el])
                 sun = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
