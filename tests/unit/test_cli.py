@@ -32,3 +32,18 @@ def test_demo_replay_waits_for_every_link_of_the_graph(tmp_path):
     player = dict(graph_overrides(tmp_path / "bag", tmp_path / "report", "bag")["bag_player"])
     assert yaml.safe_load(player["ready_topics"]) == list(PIPELINE_TOPICS)
     assert {"/uav/pose_hypotheses", "/uav/tracker_status"} <= set(PIPELINE_TOPICS)
+
+
+def test_make_detection_data_passes_the_landing_options_and_refuses_bad_ones(tmp_path, capsys):
+    import json
+
+    out = tmp_path / "data"
+    assert main(["make-detection-data", "--out", str(out), "--count", "2", "--seed", "1", "--families", "normal",
+                 "--banks-per-family", "1", "--landing-fraction", "1", "--landing-negative-fraction", "1",
+                 "--landing-sun-spread", "30"]) == 0
+    summary = json.loads((out / "dataset.json").read_text())
+    assert summary["positives"] == 0  # every image a landing frame without the UAV
+    assert summary["config"]["landing_sun_spread_deg"] == 30.0 and summary["config"]["banks_per_family"] == 1
+    with pytest.raises(SystemExit, match="landing_negative_fraction"):
+        main(["make-detection-data", "--out", str(tmp_path / "bad"), "--landing-negative-fraction", "2"])
+    capsys.readouterr()
