@@ -173,6 +173,8 @@ def test_landing_negatives_are_the_same_frame_without_the_uav():
 
 
 def test_landing_frames_keep_their_scenarios_sun_within_the_spread():
+    """``landing_sun_spread_deg`` keeps each background's sun near the scenario's azimuth (the
+    sun vector the frames are shaded with), at the family's elevations."""
     from uav_landing_vision.detection.dataset import LandingFrames, dataset_camera
     from uav_landing_vision.model import fixed_wing_mesh
     from uav_landing_vision.sim.config import load_scenario

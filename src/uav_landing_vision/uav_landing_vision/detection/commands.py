@@ -21,12 +21,12 @@ def register(sub) -> None:
                    help="fraction of head-on approach attitudes (default: 0; the rest landing-like/random)")
     p.add_argument("--landing-fraction", type=float, default=0.0,
                    help="fraction of frames of simulated landings (default: 0)")
+    p.add_argument("--landing-negative-fraction", type=float, default=0.0,
+                   help="fraction of those landing frames drawn without the UAV (default: 0)")
     p.add_argument("--landing-sun-spread", type=float, default=180.0,
                    help="landing frames' sun azimuth: the scenario's ± this many degrees (default: 180, any)")
     p.add_argument("--banks-per-family", type=int, default=3,
                    help="sky/sea panoramas (each with its own sun) per simulator family (default: 3)")
-    p.add_argument("--landing-negative-fraction", type=float, default=0.0,
-                   help="fraction of those landing frames drawn without the UAV (default: 0)")
     p.add_argument("--label-box", choices=("oriented", "extent"), default="oriented",
                    help="label: the ROI of the oriented box (Fig. 4.4, default) or the model's projected extent")
     p.add_argument("--workers", type=int, default=1, help="processes generating in parallel (default: 1)")
@@ -77,7 +77,8 @@ def _make_data(args) -> int:
                             video=args.video, camera_info=args.camera, approach_fraction=args.approach_fraction,
                             landing_fraction=args.landing_fraction,
                             landing_negative_fraction=args.landing_negative_fraction,
-                            landing_sun_spread_deg=args.landing_sun_spread, banks_per_family=args.banks_per_family, label_box=args.label_box)
+                            landing_sun_spread_deg=args.landing_sun_spread, banks_per_family=args.banks_per_family,
+                            label_box=args.label_box)
         summary = generate(cfg, args.out, workers=args.workers)
     except (ValueError, FileExistsError) as exc:
         raise SystemExit(f"make-detection-data: {exc}") from None
