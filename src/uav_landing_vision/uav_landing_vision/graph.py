@@ -171,7 +171,7 @@ class Graph:
             if proc.returncode not in _CLEAN_EXIT and name not in failed:
                 failed.append(name)
         if failed:
-            self._say(f"failed: {', '.join(failed)}")
+            self._say("failed: " + ", ".join(f"{name} (exit code {self.procs[name].returncode})" for name in failed))
             return 1
         self._say("all nodes stopped cleanly")
         return 0
@@ -196,6 +196,9 @@ class Graph:
     def _stop_all(self) -> None:
         running = [p for p in self.procs.values() if p.poll() is None]
         for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
+            if sig != signal.SIGINT and running:
+                late = ", ".join(name for name, p in self.procs.items() if p in running)
+                self._say(f"{late} still running {self.stop_timeout:g} s after the last signal; sending {sig.name}")
             for proc in running:
                 proc.send_signal(sig)
             deadline = time.monotonic() + self.stop_timeout
