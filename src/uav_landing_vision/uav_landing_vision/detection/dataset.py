@@ -178,6 +178,13 @@ def random_pose(rng: np.random.Generator, camera, cfg: DatasetConfig) -> tuple[n
     return quat, trans
 
 
+def random_sun(rng: np.random.Generator, family: str, azimuth_deg: float = 0.0, spread_deg: float = 180.0):
+    """A sun ``(azimuth, elevation)`` in degrees: ``azimuth_deg ± spread_deg``, high for the
+    ``normal`` sky and low for the ``complex`` sunset."""
+    az = azimuth_deg + rng.uniform(-spread_deg, spread_deg)
+    return az, rng.uniform(5, 45) if family == "normal" else rng.uniform(1, 12)
+
+
 class BackgroundSource:
     """Backgrounds of the configured families for one camera (panoramas built once)."""
 
@@ -199,7 +206,7 @@ class BackgroundSource:
 
     def _bank(self, fam, background_cfg, ship_cfg, make_background, seed):
         rng = np.random.default_rng(seed)
-        az, el = rng.uniform(-180, 180), rng.uniform(5, 45) if fam == "normal" else rng.uniform(1, 12)
+        az, el = random_sun(rng, fam)
         cfg = background_cfg(kind=fam, sun_azimuth_deg=float(az), sun_elevation_deg=float(el))
         return make_background(cfg, self.camera, ship_cfg(), rng)
 
@@ -302,9 +309,9 @@ class LandingFrames:
             banks = []
             for seed in np.random.SeedSequence([cfg.seed, 1 << 31, FAMILIES.index(fam)]).spawn(cfg.banks_per_family):
                 rng = np.random.default_rng(seed)
+                # Any azimuth (180) is drawn about 0, as datasets made before the spread existed.
                 spread = cfg.landing_sun_spread_deg
-                az = rng.uniform(-spread, spread) + (scenario.background.sun_azimuth_deg if spread < 180 else 0.0)
-                el = rng.uniform(5, 45) if fam == "normal" else rng.uniform(1, 12)
+                az, el = random_sun(rng, fam, scenario.background.sun_azimuth_deg if spread < 180 else 0.0, spread)
                 bcfg = replace(scenario.background, sun_azimuth_deg=float(az), sun_elevation_deg=float(el))
                 az, el = np.radians([az, el])
                 sun = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
