@@ -151,7 +151,7 @@ def test_export_drops_the_exporters_debug_records(exported):
 
 def test_runtime_on_the_exported_model(exported):
     _, path = exported
-    det = Detector(DetectorConfig(model=str(path), max_detections=5, threads=1))
+    det = Detector(DetectorConfig(model=str(path), verifier="", max_detections=5, threads=1))
     assert det.strides == STRIDES and det.input_size == (640, 384)
     frame = np.zeros((720, 1280, 3), np.uint8)
     result = det.detect(frame)

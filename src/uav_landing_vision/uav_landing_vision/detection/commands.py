@@ -1,4 +1,4 @@
-"""``uav-landing make-detection-data | train-detector | eval-detector``."""
+"""``uav-landing make-detection-data | train-detector | train-verifier | eval-detector``."""
 
 from pathlib import Path
 
@@ -55,11 +55,30 @@ def register(sub) -> None:
                    help="export OUT/last.pt (e.g. of an interrupted run) without training")
     p.set_defaults(func=_train)
 
+    p = sub.add_parser("train-verifier", help="train the box verifier on crops mined with the detector, export ONNX")
+    p.add_argument("--data", type=Path, nargs="+", required=True, help="dataset folder(s) of make-detection-data")
+    p.add_argument("--out", type=Path, default=Path("out/verifier_train"),
+                   help="run folder (mined crops, checkpoints, log)")
+    p.add_argument("--detector", default="detector.onnx", help="detector whose boxes are mined (shipped name or path)")
+    p.add_argument("--mine-threshold", type=float, default=0.1, help="detector score down to which boxes are mined")
+    p.add_argument("--epochs", type=int, default=6)
+    p.add_argument("--batch", type=int, default=128)
+    p.add_argument("--lr", type=float, default=2e-3)
+    p.add_argument("--width", type=int, default=16, help="channels of the first stage")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--workers", type=int, default=2, help="mining processes (default: 2)")
+    p.add_argument("--resume", action="store_true", help="continue from OUT/last.pt")
+    p.add_argument("--export", type=Path, default=None, help="ONNX path (default: OUT/verifier.onnx)")
+    p.set_defaults(func=_train_verifier)
+
     p = sub.add_parser("eval-detector", help="precision-recall, AP50, recall by size and speed on a bag")
     p.add_argument("--bag", type=Path, required=True, help="simulated rosbag2 folder with /uav/ground_truth")
     p.add_argument("--json", type=Path, required=True, help="metrics JSON to write")
     p.add_argument("--png", type=Path, default=None, help="PR curve PNG (default: next to the JSON)")
     p.add_argument("--model", default="detector.onnx", help="shipped model name or path")
+    p.add_argument("--verifier", default="verifier.onnx",
+                   help="box verifier: shipped model name or path, or 'none' for the detector alone")
     p.add_argument("--threshold", type=float, default=0.5, help="operating score threshold")
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--truth-box", choices=("oriented", "extent"), default="oriented",
@@ -118,11 +137,38 @@ def _train(args) -> int:
     return 0
 
 
+def _train_verifier(args) -> int:
+    import time
+
+    from .export import export_verifier_onnx
+    from .verifier_train import VerifierTrainConfig, load_checkpoint, train_verifier, trained_verifier
+
+    try:
+        cfg = VerifierTrainConfig(data=tuple(str(d) for d in args.data), out=str(args.out), detector=args.detector,
+                                  mine_threshold=args.mine_threshold, epochs=args.epochs, batch=args.batch,
+                                  lr=args.lr, width=args.width, seed=args.seed, threads=args.threads,
+                                  workers=args.workers)
+        t0 = time.perf_counter()
+        train_verifier(cfg, resume=args.resume)
+        state = load_checkpoint(cfg)
+    except (FileNotFoundError, ValueError) as exc:
+        raise SystemExit(f"train-verifier: {exc}") from None
+    log = state["log"]
+    last = log["epochs"][-1]
+    description = (f"BoxVerifierNet width {cfg.width}, {log['train_crops']} training crops mined with "
+                   f"{Path(cfg.detector).name}, {len(log['epochs'])} epochs, val AP {last.get('val_ap', float('nan')):.4f}")
+    onnx_path = export_verifier_onnx(trained_verifier(cfg, state), args.export or args.out / "verifier.onnx",
+                                     description=description)
+    print(f"trained in {time.perf_counter() - t0:.0f} s; exported {onnx_path} ({description})")
+    return 0
+
+
 def _evaluate(args) -> int:
     from .detector import DetectorConfig
     from .evaluation import evaluate_bag
 
-    cfg = DetectorConfig(model=args.model, score_threshold=args.threshold, threads=args.threads)
+    verifier = "" if args.verifier == "none" else args.verifier
+    cfg = DetectorConfig(model=args.model, verifier=verifier, score_threshold=args.threshold, threads=args.threads)
     png = args.png or args.json.with_suffix(".png")
     r = evaluate_bag(args.bag, cfg, args.json, png, truth_box=args.truth_box)
     print(f"AP50 {r['ap50']:.3f}  precision {r['precision']:.3f}  recall {r['recall']:.3f} at {r['threshold']}  "

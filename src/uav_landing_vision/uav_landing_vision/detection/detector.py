@@ -1,4 +1,5 @@
-"""UAV detector runtime (§4.2): onnxruntime inference, letterbox, decode, threshold, NMS.
+"""UAV detector runtime (§4.2): onnxruntime inference, letterbox, decode, threshold, NMS, and
+the second look of the box verifier (:mod:`.verifier`).
 
 Needs only numpy, OpenCV and onnxruntime. Frames are rectified RGB uint8 ``(H, W, 3)``.
 Boxes are ``[x0, y0, x1, y1]`` in continuous pixel coordinates where pixel (u, v) covers
@@ -18,6 +19,7 @@ import numpy as np
 MAX_LOG_SIZE = 6.0  # = network.MAX_LOG_SIZE (the runtime does not import torch)
 PAD_VALUE = 114
 DEFAULT_MODEL = "detector.onnx"
+DEFAULT_VERIFIER = "verifier.onnx"
 
 
 @dataclass(frozen=True)
@@ -25,6 +27,10 @@ class DetectorConfig:
     """Detector settings (``config/detector.yaml`` section ``detector``)."""
 
     model: str = DEFAULT_MODEL  # a file of the shipped models/ folder, or a path
+    # Box verifier (a shipped file or a path; "" for none): a box it gives a probability of
+    # holding the UAV below verifier_threshold is dropped; the others keep their scores.
+    verifier: str = DEFAULT_VERIFIER
+    verifier_threshold: float = 0.5
     score_threshold: float = 0.5  # the operating threshold
     nms_iou: float = 0.45
     max_detections: int = 10
@@ -35,6 +41,8 @@ class DetectorConfig:
     def __post_init__(self):
         if not 0.0 < self.score_threshold < 1.0 or not 0.0 < self.nms_iou <= 1.0:
             raise ValueError("score_threshold must be in (0, 1) and nms_iou in (0, 1]")
+        if not 0.0 <= self.verifier_threshold < 1.0:
+            raise ValueError("verifier_threshold must be in [0, 1)")
         if self.max_detections < 1 or self.threads < 1 or self.window_grow < 1.0 or self.window_min_px < 32:
             raise ValueError("need max_detections ≥ 1, threads ≥ 1, window_grow ≥ 1, window_min_px ≥ 32")
 
@@ -181,6 +189,11 @@ class Detector:
         except (KeyError, ValueError) as exc:
             raise ValueError(f"{path}: not a detector exported by this project (metadata {exc})") from exc
         self.input_name = self.session.get_inputs()[0].name
+        self.verifier = None
+        if config.verifier:
+            from .verifier import BoxVerifier
+
+            self.verifier = BoxVerifier(config.verifier, config.threads)
 
     def detect(self, image: np.ndarray, window=None) -> Detections:
         """Detections in a rectified RGB frame; with ``window`` ``(x, y, w, h)`` only in that
@@ -208,4 +221,8 @@ class Detector:
         boxes = np.concatenate([p[0] for p in parts])
         scores = np.concatenate([p[1] for p in parts])
         keep = nms(boxes, scores, cfg.nms_iou, cfg.max_detections)
-        return lb.to_image(boxes[keep]).reshape(-1, 4), scores[keep]
+        boxes, scores = lb.to_image(boxes[keep]).reshape(-1, 4), scores[keep]
+        if self.verifier is not None and len(boxes):
+            kept = self.verifier.probabilities(image, boxes) >= cfg.verifier_threshold
+            boxes, scores = boxes[kept], scores[kept]
+        return boxes, scores

@@ -95,3 +95,23 @@ def decode_torch(raw: torch.Tensor, stride: int) -> tuple[torch.Tensor, torch.Te
     bh = stride * torch.exp(raw[:, 4].clamp(-MAX_LOG_SIZE, MAX_LOG_SIZE))
     boxes = torch.stack([cx - bw / 2, cy - bh / 2, cx + bw / 2, cy + bh / 2], dim=-1)
     return raw[:, 0], boxes
+
+
+class BoxVerifierNet(nn.Module):
+    """The box verifier: crops (N,3,S,S) in [0,1] → one logit each (the box holds the UAV).
+
+    Four stride-2 stages of 3×3 convolutions (``width``, 2×, 4×, 6× channels), global average
+    pooling and a linear layer."""
+
+    def __init__(self, width: int = 16):
+        super().__init__()
+        c = (width, 2 * width, 4 * width, 6 * width)
+        self.features = nn.Sequential(
+            conv_bn(3, c[0], 3, 2), conv_bn(c[0], c[0]),
+            conv_bn(c[0], c[1], 3, 2), conv_bn(c[1], c[1]),
+            conv_bn(c[1], c[2], 3, 2), conv_bn(c[2], c[2]),
+            conv_bn(c[2], c[3], 3, 2), nn.AdaptiveAvgPool2d(1), nn.Flatten())
+        self.logit = nn.Linear(c[3], 1)
+
+    def forward(self, x):
+        return self.logit(self.features(x))

@@ -34,7 +34,8 @@ from .qos import IMAGE_QOS, RELIABLE_QOS
 MAKE_MODEL = (
     "uav-landing make-detection-data --out out/detection_data && "
     "uav-landing train-detector --data out/detection_data --out out/detector_train && "
-    "cp out/detector_train/detector.onnx src/uav_landing_vision/models/detector.onnx (see docs/detector.md)"
+    "cp out/detector_train/detector.onnx src/uav_landing_vision/models/detector.onnx, and the verifier with "
+    "uav-landing train-verifier (see docs/detector.md)"
 )
 
 
@@ -114,12 +115,13 @@ class DetectorNode(LandingNode):
 
 
 def _load_detector(config: DetectorConfig) -> Detector:
+    models = f"the detector model '{config.model}'" + (f" or the verifier '{config.verifier}'" if config.verifier else "")
     try:
         return Detector(config)
     except FileNotFoundError as exc:
-        raise ConfigError(f"model: the detector model '{config.model}' is missing ({exc}); make it with: {MAKE_MODEL}") from exc
+        raise ConfigError(f"model: {models} is missing ({exc}); make it with: {MAKE_MODEL}") from exc
     except Exception as exc:  # onnxruntime raises its own exception types for unreadable models
-        raise ConfigError(f"model: the detector model '{config.model}' cannot be loaded: {exc}") from exc
+        raise ConfigError(f"model: {models} cannot be loaded: {exc}") from exc
 
 
 def main(args=None) -> int:
