@@ -45,3 +45,25 @@ def test_the_shipped_model_carries_no_exporter_records():
 
     model = onnx.load(str(model_path("detector.onnx")))
     assert not any(node.metadata_props for node in model.graph.node) and not model.graph.metadata_props
+
+
+def test_the_shipped_verifier_accepts_the_uav_and_rejects_sky_and_sea():
+    from uav_landing_vision.detection.verifier import BoxVerifier
+
+    verifier = BoxVerifier("verifier.onnx", threads=2)
+    gen = SampleGenerator(DatasetConfig(seed=2026, approach_fraction=0.5, negative_fraction=0.0, partial_fraction=0.0))
+    probabilities = []
+    for i in range(80):
+        image, box = gen.sample(i)
+        if box is not None and 16 <= box[2] - box[0] <= 400:
+            probabilities.append(float(verifier.probabilities(image, box[None])[0]))
+        if len(probabilities) == 30:
+            break
+    # Measured: 29 of these 30 label boxes above 0.5 (the other 0.13).
+    assert len(probabilities) == 30 and sum(p >= 0.5 for p in probabilities) >= 26
+    rng = np.random.default_rng(0)
+    centre = rng.uniform([50, 50], [1230, 670], (40, 2))
+    width = rng.uniform(12, 200, 40)
+    height = width / rng.uniform(1, 6, 40)
+    boxes = np.concatenate([centre - np.stack([width, height], 1) / 2, centre + np.stack([width, height], 1) / 2], 1)
+    assert (verifier.probabilities(sky_and_sea(1280, 720), boxes) < 0.5).all()  # measured: at most 0.10

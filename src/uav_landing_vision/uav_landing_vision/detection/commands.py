@@ -77,8 +77,10 @@ def register(sub) -> None:
     p.add_argument("--json", type=Path, required=True, help="metrics JSON to write")
     p.add_argument("--png", type=Path, default=None, help="PR curve PNG (default: next to the JSON)")
     p.add_argument("--model", default="detector.onnx", help="shipped model name or path")
-    p.add_argument("--verifier", default="verifier.onnx",
-                   help="box verifier: shipped model name or path, or 'none' for the detector alone")
+    p.add_argument("--verifier", default="none",
+                   help="box verifier: shipped model name (verifier.onnx) or path; 'none' (default): the detector alone")
+    p.add_argument("--verifier-threshold", type=float, default=0.5,
+                   help="boxes the verifier gives a lower probability are dropped (default: 0.5)")
     p.add_argument("--threshold", type=float, default=0.5, help="operating score threshold")
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--truth-box", choices=("oriented", "extent"), default="oriented",
@@ -168,7 +170,11 @@ def _evaluate(args) -> int:
     from .evaluation import evaluate_bag
 
     verifier = "" if args.verifier == "none" else args.verifier
-    cfg = DetectorConfig(model=args.model, verifier=verifier, score_threshold=args.threshold, threads=args.threads)
+    try:
+        cfg = DetectorConfig(model=args.model, verifier=verifier, verifier_threshold=args.verifier_threshold,
+                             score_threshold=args.threshold, threads=args.threads)
+    except ValueError as exc:
+        raise SystemExit(f"eval-detector: {exc}") from None
     png = args.png or args.json.with_suffix(".png")
     r = evaluate_bag(args.bag, cfg, args.json, png, truth_box=args.truth_box)
     print(f"AP50 {r['ap50']:.3f}  precision {r['precision']:.3f}  recall {r['recall']:.3f} at {r['threshold']}  "

@@ -19,7 +19,6 @@ import numpy as np
 MAX_LOG_SIZE = 6.0  # = network.MAX_LOG_SIZE (the runtime does not import torch)
 PAD_VALUE = 114
 DEFAULT_MODEL = "detector.onnx"
-DEFAULT_VERIFIER = "verifier.onnx"
 
 
 @dataclass(frozen=True)
@@ -27,9 +26,10 @@ class DetectorConfig:
     """Detector settings (``config/detector.yaml`` section ``detector``)."""
 
     model: str = DEFAULT_MODEL  # a file of the shipped models/ folder, or a path
-    # Box verifier (a shipped file or a path; "" for none): a box it gives a probability of
-    # holding the UAV below verifier_threshold is dropped; the others keep their scores.
-    verifier: str = DEFAULT_VERIFIER
+    # Box verifier (a shipped file such as "verifier.onnx", or a path; "" for none): a box it
+    # gives a probability of holding the UAV below verifier_threshold is dropped; the others
+    # keep their scores. Off by default: the tracker's settings were chosen without it.
+    verifier: str = ""
     verifier_threshold: float = 0.5
     score_threshold: float = 0.5  # the operating threshold
     nms_iou: float = 0.45

@@ -141,7 +141,8 @@ def evaluate_bag(bag, config, json_path, png_path=None, progress: bool = True, t
         frames.append({"boxes": det.boxes, "scores": det.scores, "ms": ms,
                        "gt": np.zeros((0, 4)) if box is None else box[None]})
     result = summarise(frames, config.score_threshold)
-    result.update(bag=str(bag), model=str(config.model), truth_box=truth_box)
+    result.update(bag=str(bag), model=str(config.model), verifier=str(config.verifier),
+                  verifier_threshold=config.verifier_threshold, truth_box=truth_box)
     Path(json_path).parent.mkdir(parents=True, exist_ok=True)
     Path(json_path).write_text(json.dumps({k: v for k, v in result.items() if k != "curve"}, indent=2))
     if png_path:
