@@ -79,6 +79,22 @@ def test_start_up_fails_clearly_without_a_model(ros, tmp_path):
         DetectorNode(context=ros.context, parameter_overrides=[Parameter("model", value=str(not_onnx))])
 
 
+def test_start_up_fails_clearly_without_the_verifier_it_names(ros, model, tmp_path):
+    with pytest.raises(ConfigError, match=r"model: .* or the verifier '.*none.onnx' is missing"):
+        DetectorNode(context=ros.context, parameter_overrides=[Parameter("model", value=str(model)),
+                                                               Parameter("verifier", value=str(tmp_path / "none.onnx"))])
+
+
+@pytest.mark.parametrize("threshold, kept", [(0.0, MAX_DETECTIONS), (0.999, 0)])
+def test_the_shipped_verifier_drops_the_boxes_it_rejects(ros, model, threshold, kept):
+    """An untrained network's boxes on a noise frame, none of them the UAV: a threshold of
+    0.999 drops them all, 0 keeps them all."""
+    rig = Rig(ros, model, Parameter("verifier", value="verifier.onnx"), Parameter("verifier_threshold", value=threshold))
+    image = image_msg(rgb_frame(CAMERA, 0), "rgb8", sec=4)
+    out = rig.send(image)
+    assert out is not None and out.header == image.header and len(out.detections) == kept
+
+
 def test_main_exits_with_code_2_naming_the_missing_model(tmp_path, capsys, ros_domain_id, monkeypatch):
     monkeypatch.setenv("ROS_DOMAIN_ID", str(ros_domain_id))
     code = detector_module.main(["--ros-args", "-p", f"model:={tmp_path / 'none.onnx'}"])
