@@ -89,8 +89,8 @@ def test_mining_labels_boxes_by_overlap_and_does_not_depend_on_the_processes(dat
 def test_training_resumes_only_with_its_own_settings_and_exports_what_it_trained(datasets, tmp_path):
     import onnx
 
-    from uav_landing_vision.detection.verifier_train import (
-        VerifierTrainConfig, load_checkpoint, predict, train_verifier, trained_verifier)
+    from uav_landing_vision.detection.train import load_checkpoint
+    from uav_landing_vision.detection.verifier_train import VerifierTrainConfig, predict, train_verifier, trained_verifier
 
     folders, detector, _ = datasets
     cfg = VerifierTrainConfig(data=folders, detector=detector, out=str(tmp_path / "run"), epochs=1, batch=16,

@@ -143,7 +143,8 @@ def _train_verifier(args) -> int:
     import time
 
     from .export import export_verifier_onnx
-    from .verifier_train import VerifierTrainConfig, load_checkpoint, train_verifier, trained_verifier
+    from .train import load_checkpoint
+    from .verifier_train import VerifierTrainConfig, train_verifier, trained_verifier
 
     try:
         cfg = VerifierTrainConfig(data=tuple(str(d) for d in args.data), out=str(args.out), detector=args.detector,

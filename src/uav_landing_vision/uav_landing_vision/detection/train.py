@@ -219,12 +219,8 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
     log = {"config": asdict(cfg), "train_images": len(train_items), "val_images": len(val_items), "epochs": []}
     start_epoch, ckpt = 0, out / "last.pt"
     if resume:
-        state = load_checkpoint(cfg)
-        net.load_state_dict(state["net"])
-        optim.load_state_dict(state["optim"])
-        sched.load_state_dict(state["sched"])
+        state = restore(cfg, net, optim, sched)
         shuffle.set_state(state["shuffle_rng"])
-        torch.set_rng_state(state["torch_rng"])
         start_epoch, log = state["epoch"] + 1, state["log"]
 
     frozen = folded_normalisation(cfg)
@@ -327,14 +323,26 @@ def weights_from_onnx(path, net: UavDetectorNet) -> dict:
     return state
 
 
-def load_checkpoint(cfg: TrainConfig) -> dict:
-    """The run's ``last.pt``; FileNotFoundError without one, ValueError if other settings made it."""
+def restore(cfg, net, optim, sched) -> dict:
+    """Load the run's checkpoint (:func:`load_checkpoint`) into the network, optimiser,
+    scheduler and torch's RNG; returns it for the rest of its state."""
+    state = load_checkpoint(cfg)
+    net.load_state_dict(state["net"])
+    optim.load_state_dict(state["optim"])
+    sched.load_state_dict(state["sched"])
+    torch.set_rng_state(state["torch_rng"])
+    return state
+
+
+def load_checkpoint(cfg) -> dict:
+    """The ``last.pt`` of the run ``cfg`` (a training config with ``out``: this module's or the
+    verifier's); FileNotFoundError without one, ValueError if other settings made it."""
     ckpt = Path(cfg.out) / "last.pt"
     if not ckpt.exists():
         raise FileNotFoundError(f"no checkpoint {ckpt}")
     state = torch.load(ckpt, weights_only=False)
     # Settings added since the checkpoint was written count as their defaults.
-    saved = {**{f.name: f.default for f in fields(TrainConfig)}, **state["config"]}
+    saved = {**{f.name: f.default for f in fields(cfg)}, **state["config"]}
     if saved != asdict(cfg):
         raise ValueError(f"{ckpt} was made with other settings: {state['config']}")
     return state

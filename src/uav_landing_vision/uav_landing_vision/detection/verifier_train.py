@@ -13,7 +13,7 @@ processes. Every 10th image of each folder is validation, as in the detector's t
 
 import json
 import time
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import cv2
@@ -25,7 +25,7 @@ from .dataset import read_labels
 from .detector import Detector, DetectorConfig, box_iou
 from .evaluation import average_precision
 from .network import BoxVerifierNet
-from .train import VAL_EVERY
+from .train import VAL_EVERY, restore
 from .verifier import CropGeometry, box_crops
 
 MINE_MAX_BOXES = 20  # candidate boxes per image
@@ -181,11 +181,7 @@ def train_verifier(cfg: VerifierTrainConfig, resume: bool = False, progress: boo
            "train_positive_share": float(share), "epochs": []}
     start = 0
     if resume:
-        state = load_checkpoint(cfg)
-        net.load_state_dict(state["net"])
-        optim.load_state_dict(state["optim"])
-        sched.load_state_dict(state["sched"])
-        torch.set_rng_state(state["torch_rng"])
+        state = restore(cfg, net, optim, sched)
         start, log = state["epoch"] + 1, state["log"]
     for epoch in range(start, cfg.epochs):
         rng = np.random.default_rng(np.random.SeedSequence([cfg.seed, epoch]))
@@ -214,18 +210,6 @@ def train_verifier(cfg: VerifierTrainConfig, resume: bool = False, progress: boo
         (out / "last.tmp").replace(out / "last.pt")
     (out / "train_log.json").write_text(json.dumps(log, indent=2))
     return log
-
-
-def load_checkpoint(cfg: VerifierTrainConfig) -> dict:
-    """The run's ``last.pt``; FileNotFoundError without one, ValueError if other settings made it."""
-    ckpt = Path(cfg.out) / "last.pt"
-    if not ckpt.exists():
-        raise FileNotFoundError(f"no checkpoint {ckpt}")
-    state = torch.load(ckpt, weights_only=False)
-    saved = {**{f.name: f.default for f in fields(VerifierTrainConfig)}, **state["config"]}
-    if json.loads(json.dumps(saved)) != json.loads(json.dumps(asdict(cfg))):
-        raise ValueError(f"{ckpt} was made with other settings: {state['config']}")
-    return state
 
 
 def trained_verifier(cfg: VerifierTrainConfig, state: dict) -> BoxVerifierNet:
