@@ -114,6 +114,10 @@ def test_training_resumes_only_with_its_own_settings_and_exports_what_it_trained
     expected = predict(net, box_crops(image, boxes))
     np.testing.assert_allclose(verifier.probabilities(image, boxes), expected, atol=1e-5)
     assert verifier.probabilities(image, np.zeros((0, 4))).shape == (0,)
+    with pytest.raises(ValueError, match="uint8"):
+        verifier.probabilities(image.astype(np.float32), boxes)
+    with pytest.raises(ValueError, match="finite"):
+        verifier.probabilities(image, np.array([[0.0, 0.0, np.nan, 5.0]]))
 
 
 def test_the_detector_drops_the_boxes_the_verifier_rejects(datasets, tmp_path):

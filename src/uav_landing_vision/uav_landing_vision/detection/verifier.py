@@ -69,8 +69,14 @@ class BoxVerifier:
         self.input_name = self.session.get_inputs()[0].name
 
     def probabilities(self, image: np.ndarray, boxes: np.ndarray) -> np.ndarray:
-        """Probability ``(N,)`` that each box ``(N,4)`` of the RGB frame holds the UAV."""
+        """Probability ``(N,)`` that each box ``(N,4)`` of the RGB frame holds the UAV; a
+        ValueError for a frame that is not RGB uint8 or boxes that are not finite."""
+        from .detector import check_image
+
+        image = check_image(image)
         boxes = np.asarray(boxes, np.float32).reshape(-1, 4)
+        if not np.isfinite(boxes).all():
+            raise ValueError("boxes must be finite [x0, y0, x1, y1]")
         if not len(boxes):
             return np.zeros(0, np.float32)
         crops = box_crops(image, boxes, self.geometry)
