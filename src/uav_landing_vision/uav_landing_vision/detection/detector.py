@@ -109,7 +109,7 @@ def letterbox(image: np.ndarray, size: tuple[int, int], multiple: int = 32,
     return out, Letterbox(scale, px, py)
 
 
-def _sigmoid(x: np.ndarray) -> np.ndarray:
+def sigmoid(x: np.ndarray) -> np.ndarray:
     return 1.0 / (1.0 + np.exp(-x))
 
 
@@ -122,7 +122,7 @@ def decode(raw: np.ndarray, stride: int, threshold: float) -> tuple[np.ndarray, 
     raw = np.asarray(raw, np.float32)
     if raw.ndim != 3 or raw.shape[0] != 5:
         raise ValueError(f"head output must be (5, H, W), got {raw.shape}")
-    scores = _sigmoid(raw[0])
+    scores = sigmoid(raw[0])
     i, j = np.nonzero(scores >= threshold)
     t = raw[:, i, j]
     cx = (j + 0.5 + t[1]) * stride
@@ -166,22 +166,28 @@ def search_window(roi, width: int, height: int, grow: float, min_px: int) -> tup
     return x0, y0, ww, wh
 
 
+def onnx_session(model, threads: int):
+    """``(path, session)``: an onnxruntime CPU session of ``model``, a path or else a file of the
+    shipped models/ folder, with ``threads`` intra-op threads."""
+    import onnxruntime as ort
+
+    path = Path(model)
+    if not path.exists():
+        from ..resources import model_path
+
+        path = model_path(str(model))
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = threads
+    options.inter_op_num_threads = 1
+    return path, ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+
+
 class Detector:
     """The ONNX detector; one onnxruntime session, reused for every frame."""
 
     def __init__(self, config: DetectorConfig = DetectorConfig()):
-        import onnxruntime as ort
-
         self.config = config
-        path = Path(config.model)
-        if not path.exists():
-            from ..resources import model_path
-
-            path = model_path(config.model)
-        options = ort.SessionOptions()
-        options.intra_op_num_threads = config.threads
-        options.inter_op_num_threads = 1
-        self.session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+        path, self.session = onnx_session(config.model, config.threads)
         meta = self.session.get_modelmeta().custom_metadata_map
         try:
             self.strides = tuple(int(s) for s in json.loads(meta["strides"]))

@@ -13,7 +13,6 @@ ONNX metadata, so a model is always fed the crops it was trained on.
 """
 
 import json
-from pathlib import Path
 from typing import NamedTuple
 
 import cv2
@@ -45,21 +44,18 @@ def box_crops(image: np.ndarray, boxes: np.ndarray, geometry: CropGeometry = Cro
     return out
 
 
+def crop_blob(crops: np.ndarray) -> np.ndarray:
+    """The network's input ``(N, 3, S, S)`` float32 in [0, 1] of uint8 crops ``(N, S, S, 3)``."""
+    return np.ascontiguousarray(crops.transpose(0, 3, 1, 2), np.float32) * np.float32(1 / 255)
+
+
 class BoxVerifier:
     """The ONNX verifier; one onnxruntime session, reused for every frame."""
 
     def __init__(self, model, threads: int = 2):
-        import onnxruntime as ort
+        from .detector import onnx_session
 
-        path = Path(model)
-        if not path.exists():
-            from ..resources import model_path
-
-            path = model_path(str(model))
-        options = ort.SessionOptions()
-        options.intra_op_num_threads = threads
-        options.inter_op_num_threads = 1
-        self.session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+        path, self.session = onnx_session(model, threads)
         meta = self.session.get_modelmeta().custom_metadata_map
         try:
             crop = json.loads(meta["crop"])
@@ -71,7 +67,7 @@ class BoxVerifier:
     def probabilities(self, image: np.ndarray, boxes: np.ndarray) -> np.ndarray:
         """Probability ``(N,)`` that each box ``(N,4)`` of the RGB frame holds the UAV; a
         ValueError for a frame that is not RGB uint8 or boxes that are not finite."""
-        from .detector import check_image
+        from .detector import check_image, sigmoid
 
         image = check_image(image)
         boxes = np.asarray(boxes, np.float32).reshape(-1, 4)
@@ -79,7 +75,5 @@ class BoxVerifier:
             raise ValueError("boxes must be finite [x0, y0, x1, y1]")
         if not len(boxes):
             return np.zeros(0, np.float32)
-        crops = box_crops(image, boxes, self.geometry)
-        blob = np.ascontiguousarray(crops.transpose(0, 3, 1, 2), np.float32) * np.float32(1 / 255)
-        logits = self.session.run(None, {self.input_name: blob})[0].reshape(-1)
-        return (1.0 / (1.0 + np.exp(-logits.astype(np.float64)))).astype(np.float32)
+        blob = crop_blob(box_crops(image, boxes, self.geometry))
+        return sigmoid(self.session.run(None, {self.input_name: blob})[0].reshape(-1))

@@ -26,7 +26,7 @@ from .detector import Detector, DetectorConfig, box_iou
 from .evaluation import average_precision
 from .network import BoxVerifierNet
 from .train import VAL_EVERY, restore
-from .verifier import CropGeometry, box_crops
+from .verifier import CropGeometry, box_crops, crop_blob
 
 MINE_MAX_BOXES = 20  # candidate boxes per image
 
@@ -61,10 +61,17 @@ class VerifierTrainConfig:
         return {k: getattr(self, k) for k in ("data", "detector", "mine_threshold", "positive_iou", "negative_iou", "seed")}
 
 
-def _mine_images(args) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    cfg, items = args
-    detector = Detector(DetectorConfig(model=cfg.detector, verifier="", score_threshold=cfg.mine_threshold,
-                                       max_detections=MINE_MAX_BOXES, threads=1))
+_miner: tuple = ()  # (config, detector) of a mining process, made once by _start_miner
+
+
+def _start_miner(cfg: VerifierTrainConfig) -> None:
+    global _miner
+    _miner = (cfg, Detector(DetectorConfig(model=cfg.detector, verifier="", score_threshold=cfg.mine_threshold,
+                                           max_detections=MINE_MAX_BOXES, threads=1)))
+
+
+def _mine_images(items) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    cfg, detector = _miner
     out = []
     for folder, i in items:
         root = Path(cfg.data[folder])
@@ -109,9 +116,9 @@ def mine_crops(cfg: VerifierTrainConfig, progress: bool = True) -> dict:
         items += [(folder, i) for i in range(json.loads(meta_path.read_text())["images"])]
     chunks = [items[k : k + 50] for k in range(0, len(items), 50)]
     parts = []
-    with get_context("spawn").Pool(cfg.workers) as pool, \
+    with get_context("spawn").Pool(cfg.workers, _start_miner, (cfg,)) as pool, \
             tqdm(total=len(items), desc="mining", unit="image", disable=not progress) as bar:
-        for chunk in pool.imap(_mine_images, [(cfg, c) for c in chunks]):
+        for chunk in pool.imap(_mine_images, chunks):
             parts.append(chunk)
             bar.update(len(chunk))
     per_image = [p for chunk in parts for p in chunk]
@@ -145,8 +152,7 @@ def predict(net: BoxVerifierNet, crops: np.ndarray, batch: int = 512) -> np.ndar
     out = []
     with torch.no_grad():
         for k in range(0, len(crops), batch):
-            x = torch.from_numpy(np.ascontiguousarray(crops[k : k + batch].transpose(0, 3, 1, 2), np.float32) / 255)
-            out.append(torch.sigmoid(net(x)[:, 0]).numpy())
+            out.append(torch.sigmoid(net(torch.from_numpy(crop_blob(crops[k : k + batch])))[:, 0]).numpy())
     return np.concatenate(out) if out else np.zeros(0, np.float32)
 
 
