@@ -6,7 +6,9 @@ import numpy as np
 import pytest
 
 from uav_landing_vision.camera import CameraModel, save_camera_info_yaml
-from uav_landing_vision.detection.dataset import DatasetConfig, generate, model_roi, read_labels, yolo_line
+from uav_landing_vision.detection.dataset import (DatasetConfig, generate, model_roi, oriented_box_tie, outline_roi,
+                                                  read_labels, yolo_line)
+from uav_landing_vision.detection.detector import box_iou
 
 
 K = np.array([[100.0, 0.0, 50.0], [0.0, 100.0, 40.0], [0.0, 0.0, 1.0]])
@@ -39,6 +41,50 @@ def test_model_roi_of_a_turned_plate_is_the_roi_of_its_oriented_box():
     box = model_roi(vertices, K, IDENTITY, [0.0, 0.0, 10.0], 100, 80)
     np.testing.assert_allclose(box, _opencv_extent(vertices, [0.0, 0.0, 10.0]), atol=1e-3)
     np.testing.assert_allclose(box[2] - box[0], 20 * np.sqrt(2), atol=1e-3)
+
+
+def _scanned_rectangles(outline: np.ndarray, step_deg: float = 0.005):
+    """Oracle: enclosing rectangles of ``outline`` at every angle of a dense scan, as
+    ``(angles, areas, rois)`` (ROIs in pixel edges, unclipped)."""
+    a = np.radians(np.arange(0.0, 90.0, step_deg))
+    c, s = np.cos(a)[:, None], np.sin(a)[:, None]
+    u, v = outline[:, 0] * c + outline[:, 1] * s, -outline[:, 0] * s + outline[:, 1] * c
+    lo_u, hi_u, lo_v, hi_v = u.min(1), u.max(1), v.min(1), v.max(1)
+    cu = np.stack([lo_u, hi_u, hi_u, lo_u], 1)
+    cv = np.stack([lo_v, lo_v, hi_v, hi_v], 1)
+    x, y = cu * c - cv * s + 0.5, cu * s + cv * c + 0.5
+    return a, (hi_u - lo_u) * (hi_v - lo_v), np.stack([x.min(1), y.min(1), x.max(1), y.max(1)], 1)
+
+
+def test_an_acute_triangle_is_a_tie_of_the_minimum_area_rule():
+    # Each side of an acute triangle gives an enclosing rectangle of twice its area, so Fig.
+    # 4.4's choice between them is arbitrary; the runner-up is a rather different box.
+    outline = np.array([[10.0, 20.0], [50.0, 20.0], [30.0, 45.0]])
+    margin, runner_up = oriented_box_tie(outline, 100, 80)
+    assert margin == pytest.approx(0.0, abs=1e-9)
+    assert box_iou(runner_up[None], outline_roi(outline, 100, 80)[None])[0, 0] < 0.8
+
+
+def test_tie_margin_of_a_cut_rectangle_matches_a_dense_scan():
+    # A 40 × 10 px bar tilted by 17° with one corner cut: the bar's own box is the label; the
+    # cut gives the runner-up, a larger box at another angle.
+    a = np.radians(17.0)
+    rot = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+    outline = np.array([[0.0, 0.0], [34.0, 0.0], [40.0, 6.0], [40.0, 10.0], [0.0, 10.0]]) @ rot.T + [30.0, 20.0]
+    margin, runner_up = oriented_box_tie(outline, 100, 80)
+    angles, areas, rois = _scanned_rectangles(outline)
+    label = outline_roi(outline, 100, 80)
+    np.testing.assert_allclose(areas.min(), 400.0, rtol=1e-6)
+    distinct = box_iou(rois, label[None])[:, 0] < 0.8
+    local_min = (areas <= np.roll(areas, 1)) & (areas <= np.roll(areas, -1))
+    expected = areas[distinct & local_min].min() / areas.min() - 1.0
+    assert margin == pytest.approx(expected, abs=1e-4)
+    assert margin > 0.1  # a clear winner
+
+
+def test_a_rectangle_has_no_runner_up():
+    outline = np.array([[10.0, 10.0], [50.0, 10.0], [50.0, 20.0], [10.0, 20.0]])
+    assert oriented_box_tie(outline, 100, 80) == (np.inf, None)
 
 
 def test_model_roi_extent_skips_the_oriented_box_of_a_thin_tilted_outline():

@@ -181,5 +181,8 @@ def _evaluate(args) -> int:
     print(f"AP50 {r['ap50']:.3f}  precision {r['precision']:.3f}  recall {r['recall']:.3f} at {r['threshold']}  "
           f"FP/100 frames {r['false_positives_per_100_frames']:.1f} (best box only "
           f"{r['best_box_false_positives_per_100_frames']:.1f})  median {r['ms_per_frame']:.1f} ms/frame")
+    if "truth_near_ties" in r:
+        print(f"Fig. 4.4 truth: {r['truth_near_ties']} of {r['frames']} frames a near tie; {r['runner_up_misses']} "
+              f"misses matched the runner-up box instead (area margins {r['runner_up_miss_margins']})")
     print(f"wrote {args.json} and {png}")
     return 0

@@ -25,6 +25,7 @@ import cv2
 import numpy as np
 
 from ..geometry import euler_zyx_to_matrix, matrix_to_quat, quat_multiply, quat_normalise
+from .detector import box_iou
 
 FAMILIES = ("normal", "complex", "images", "video")
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp")
@@ -100,21 +101,11 @@ class DatasetConfig:
         return self.label_box == "oriented"
 
 
-def model_roi(vertices: np.ndarray, K: np.ndarray, quat, trans, width: int, height: int,
-              oriented: bool = True) -> np.ndarray | None:
-    """Fig. 4.4 on the exact outline: the model's vertices projected at the pose (rectified
-    pinhole ``K``), their convex hull clipped to the image → minimum-area oriented box →
-    axis-aligned ROI ``[x0,y0,x1,y1]`` (pixel edges: pixel u covers [u, u+1)), clipped.
-
-    The oriented box of a binarised silhouette is that of its convex hull, and the hull of the
-    projected model is the hull of its vertices; this is the §4.2.2 label of a silhouette drawn
-    at unlimited resolution, so wings thinner than a pixel still count. None if the model is
-    out of view or reaches behind the camera.
-
-    ``oriented=False`` skips the oriented box: the ROI is then the extent of the clipped hull,
-    the smallest axis-aligned box that holds the projected model. For a thin, tilted UAV the
-    two differ widely (docs/detector.md, "Oriented and extent boxes").
-    """
+def projected_outline(vertices: np.ndarray, K: np.ndarray, quat, trans, width: int, height: int) -> np.ndarray | None:
+    """The outline of the model projected at the pose (rectified pinhole ``K``): the convex hull
+    of its projected vertices clipped to the image, ``(N, 2)`` pixel-centre coordinates. This is
+    the outline of the silhouette drawn at unlimited resolution, so wings thinner than a pixel
+    still count. None if the model is out of view or reaches behind the camera."""
     from ..render.boxes import pose_matrices, project_points
 
     rot, t = pose_matrices(np.asarray(quat, float)[None], np.asarray(trans, float)[None])
@@ -127,13 +118,74 @@ def model_roi(vertices: np.ndarray, K: np.ndarray, quat, trans, width: int, heig
     area, clipped = cv2.intersectConvexConvex(hull, frame)
     if area <= 0 or clipped is None:
         return None
-    outline = clipped.reshape(-1, 2)
-    corners = (cv2.boxPoints(cv2.minAreaRect(outline)) if oriented else outline) + 0.5
+    return clipped.reshape(-1, 2).astype(np.float64)
+
+
+def _corners_roi(corners: np.ndarray, width: int, height: int) -> np.ndarray | None:
+    """Axis-aligned ROI ``[x0,y0,x1,y1]`` (pixel edges) of pixel-centre corner points, clipped."""
+    corners = np.asarray(corners, float) + 0.5
     x0, y0 = np.maximum(corners.min(axis=0), 0.0)
     x1, y1 = np.minimum(corners.max(axis=0), (width, height))
     if x1 <= x0 or y1 <= y0:
         return None
     return np.array([x0, y0, x1, y1], dtype=np.float64)
+
+
+def outline_roi(outline: np.ndarray | None, width: int, height: int, oriented: bool = True) -> np.ndarray | None:
+    """Fig. 4.4 on an outline (:func:`projected_outline`): minimum-area oriented box → its
+    axis-aligned ROI ``[x0,y0,x1,y1]`` (pixel edges: pixel u covers [u, u+1)), clipped; None for
+    no outline. The oriented box of a binarised silhouette is that of its convex hull, so on the
+    exact outline this is the §4.2.2 label of a silhouette drawn at unlimited resolution.
+
+    ``oriented=False`` skips the oriented box: the ROI is then the extent of the outline, the
+    smallest axis-aligned box that holds the projected model. For a thin, tilted UAV the two
+    differ widely (docs/detector.md, "Oriented and extent boxes").
+    """
+    if outline is None:
+        return None
+    return _corners_roi(cv2.boxPoints(cv2.minAreaRect(outline.astype(np.float32))) if oriented else outline,
+                        width, height)
+
+
+def model_roi(vertices: np.ndarray, K: np.ndarray, quat, trans, width: int, height: int,
+              oriented: bool = True) -> np.ndarray | None:
+    """The label of the model at a pose: :func:`outline_roi` of its :func:`projected_outline`."""
+    return outline_roi(projected_outline(vertices, K, quat, trans, width, height), width, height, oriented)
+
+
+def oriented_box_tie(outline: np.ndarray, width: int, height: int,
+                     distinct_iou: float = 0.8) -> tuple[float, np.ndarray | None]:
+    """How narrowly Fig. 4.4's minimum-area rule picks its oriented box for a convex ``outline``
+    (pixel-centre coordinates, as :func:`projected_outline` gives).
+
+    A minimum-area enclosing rectangle has a side along an edge of the outline, so each edge
+    gives a candidate rectangle. Among the candidates whose ROI overlaps the label's ROI by IoU
+    < ``distinct_iou``, the smallest is the runner-up. Returns ``(margin, roi)``: its area over
+    the minimum, minus 1, and its ROI; ``(inf, None)`` when every candidate gives nearly the
+    label's ROI. A margin of a few per cent means the label turns on sub-pixel detail.
+    """
+    outline = np.asarray(outline, float)
+    label = outline_roi(outline, width, height)
+    edges = np.roll(outline, -1, axis=0) - outline
+    edges = edges[np.hypot(edges[:, 0], edges[:, 1]) > 1e-9]
+    if label is None or not len(edges):
+        return np.inf, None
+    axis_u = edges / np.hypot(edges[:, 0], edges[:, 1])[:, None]      # along each edge
+    axis_v = np.stack([-axis_u[:, 1], axis_u[:, 0]], axis=1)           # across it
+    u, v = axis_u @ outline.T, axis_v @ outline.T                      # (E, N)
+    lo_u, hi_u, lo_v, hi_v = u.min(1), u.max(1), v.min(1), v.max(1)
+    area = (hi_u - lo_u) * (hi_v - lo_v)
+    corner_u = np.stack([lo_u, hi_u, hi_u, lo_u], axis=1)[..., None]
+    corner_v = np.stack([lo_v, lo_v, hi_v, hi_v], axis=1)[..., None]
+    corners = corner_u * axis_u[:, None] + corner_v * axis_v[:, None] + 0.5   # (E, 4, 2) pixel edges
+    rois = np.concatenate([np.maximum(corners.min(axis=1), 0.0),
+                           np.minimum(corners.max(axis=1), (width, height))], axis=1)
+    valid = (rois[:, 2] > rois[:, 0]) & (rois[:, 3] > rois[:, 1])
+    distinct = valid & (box_iou(rois, label[None])[:, 0] < distinct_iou)
+    if not distinct.any():
+        return np.inf, None
+    k = int(np.argmin(np.where(distinct, area, np.inf)))
+    return float(area[k] / area.min() - 1.0), rois[k]
 
 
 def yolo_line(box: np.ndarray, width: int, height: int) -> str:
