@@ -237,6 +237,59 @@ def test_stale_and_out_of_order_poses_are_ignored(bridge):
     assert not bridge.on_pose(1.5, p_cam, q_cam, COV, now_s=2.0)
 
 
+def camera_pose(p_land, rpy=(0.0, 0.0, 0.0)):
+    cam = CONFIG.camera
+    return camera_pose_from_truth(cam.position_m, cam.rpy, CONFIG.net_position_m, p_land, rpy)
+
+
+def test_pose_stamped_ahead_of_the_clock_is_refused_and_does_not_shut_out_later_ones(bridge):
+    fly(bridge, approach(), t_end=(120.0 - 30.0) / 20.0)  # LAND at 30 m
+    assert bridge.stage == Stage.LAND
+    p_cam, q_cam = camera_pose(on_axis(30.0))
+    with pytest.raises(ValueError, match="ahead of the clock"):
+        bridge.on_pose(100.0, p_cam, q_cam, COV, now_s=4.6)
+    assert bridge.on_pose(4.55, p_cam, q_cam, COV, now_s=4.6)  # the next correct pose is taken
+    # 40 m to starboard: outside the cone, so LAND ends at the next tick
+    p_cam, q_cam = camera_pose(on_axis(30.0, lateral_m=40.0))
+    assert bridge.on_pose(4.6, p_cam, q_cam, COV, now_s=4.62)
+    assert bridge.tick(4.63).guidance.stage == Stage.GO_AROUND
+    with pytest.raises(ValueError, match="finite time >= 0"):
+        bridge.on_pose(-0.05, p_cam, q_cam, COV, now_s=4.7)
+
+
+def test_a_clock_that_jumps_back_drops_the_held_pose(bridge):
+    bridge.on_tracker_state(TRACKER_TRACKING)
+    p_cam, q_cam = camera_pose(on_axis(40.0))
+    assert bridge.on_pose(500.0, p_cam, q_cam, COV, now_s=500.0)
+    assert bridge.tick(500.01).guidance.stage == Stage.APPROACH
+    assert bridge.tick(10.0).guidance.stage == Stage.LOITER  # replay restarted: no fresh pose
+    assert bridge.on_pose(10.0, p_cam, q_cam, COV, now_s=10.0)
+    bridge.on_tracker_state(TRACKER_LOST)
+    bridge.on_tracker_state(TRACKER_TRACKING)
+    assert bridge.on_pose(9.0, p_cam, q_cam, COV, now_s=9.0)  # LOST forgets the newest stamp too
+
+
+def test_a_pose_outside_the_cone_never_commits_the_landing(bridge):
+    fly(bridge, approach(), t_end=(120.0 - 30.0) / 20.0)
+    assert bridge.stage == Stage.LAND
+    # one outlier 6.8 m from the net, 63° to starboard: within no-return range, outside the cone
+    p_land = np.array([-3.0, 6.0, -1.0])
+    bridge.on_tracker_state(TRACKER_TRACKING)
+    p_cam, q_cam = camera_pose(p_land)
+    assert bridge.on_pose(4.6, p_cam, q_cam, COV, now_s=4.61)
+    assert bridge.tick(4.62).guidance.stage == Stage.GO_AROUND
+
+
+def test_values_mavlink_cannot_carry_are_refused(bridge):
+    bridge.on_tracker_state(TRACKER_TRACKING)
+    p_cam, q_cam = camera_pose(on_axis(40.0))
+    with pytest.raises(ValueError, match="float32"):
+        bridge.on_pose(1.0, p_cam * 1e38, q_cam, COV, now_s=1.0)
+    with pytest.raises(ValueError, match="float32"):
+        bridge.on_pose(1.0, p_cam, q_cam, COV * 1e40, now_s=1.0)
+    assert bridge.tick(1.01).sent == ("HEARTBEAT",) and not bridge.sender.poses
+
+
 def test_bad_pose_is_rejected_and_nothing_is_sent(bridge):
     cam = CONFIG.camera
     p_cam, q_cam = camera_pose_from_truth(cam.position_m, cam.rpy, CONFIG.net_position_m, on_axis(40.0), (0, 0, 0))

@@ -7,6 +7,7 @@ Call ``on_pose`` / ``on_tracker_state`` from the subscriptions and ``tick`` from
 import math
 from dataclasses import dataclass
 
+import numpy as np
 from pymavlink.dialects.v20 import common as mav2
 
 from .config import GcsBridgeConfig
@@ -16,6 +17,10 @@ from .mavlink import MavlinkSender
 
 TRACKER_LOST, TRACKER_ACQUIRING, TRACKER_TRACKING = 0, 1, 2  # uav_landing_msgs/TrackerStatus.state
 HEARTBEAT_PERIOD_S = 1.0
+# A pose stamped further than this ahead of the bridge's clock is refused: its stamp cannot be
+# checked for staleness, and as the newest stamp it would shut out every correct pose after it.
+CLOCK_LEAD_TOLERANCE_S = 0.05
+FLOAT32_MAX = float(np.finfo(np.float32).max)  # MAVLink's positions and covariances are float32
 
 
 @dataclass(frozen=True)
@@ -27,10 +32,11 @@ class TickResult:
 class GcsBridge:
     """Decides what to send and when: a pose is sent once, only while fresh and tracked.
 
-    A pose is fresh while ``now_s − stamp_s <= stale_timeout_s``; the tracker must report
-    TRACKING (its latest state wins; LOST drops the held pose). Stale or lost → no position
-    message at all and, in LAND, GO_AROUND at the next tick (within 0.5 s, checked by the
-    config). Stage changes go to the GCS as STATUSTEXT.
+    A pose is fresh while ``−CLOCK_LEAD_TOLERANCE_S <= now_s − stamp_s <= stale_timeout_s``;
+    the tracker must report TRACKING (its latest state wins; LOST drops the held pose). Stale or
+    lost → no position message at all and, in LAND, GO_AROUND at the next tick (within 0.5 s,
+    checked by the config). A clock that jumps back behind the held pose drops it too. Stage
+    changes go to the GCS as STATUSTEXT.
     """
 
     def __init__(self, config: GcsBridgeConfig, sender: MavlinkSender | None = None):
@@ -52,17 +58,30 @@ class GcsBridge:
     def on_pose(self, stamp_s: float, position_cam, quat_cam, covariance, now_s: float) -> bool:
         """Take a tracker pose (FLU body in the camera optical frame, ROS 6×6 covariance).
 
-        Malformed input raises ValueError and changes nothing. Returns False, ignoring the
-        pose, when it is older than the one held or already stale at ``now_s``.
+        Malformed input raises ValueError and changes nothing: a stamp that is not a finite time
+        ≥ 0 or lies more than ``CLOCK_LEAD_TOLERANCE_S`` ahead of ``now_s``, or a pose or
+        covariance MAVLink cannot carry. Returns False, ignoring the pose, when it is older than
+        the one held or already stale at ``now_s``.
         """
-        if not math.isfinite(stamp_s):
-            raise ValueError(f"pose stamp must be finite, got {stamp_s!r}")
+        if not (math.isfinite(stamp_s) and stamp_s >= 0.0):
+            raise ValueError(f"pose stamp must be a finite time >= 0, got {stamp_s!r}")
+        if stamp_s - now_s > CLOCK_LEAD_TOLERANCE_S:
+            raise ValueError(f"pose stamp {stamp_s:.3f} s is {stamp_s - now_s:.3f} s ahead of the clock "
+                             f"(more than {CLOCK_LEAD_TOLERANCE_S} s): clocks out of step?")
         pose = camera_to_landing(position_cam, quat_cam, covariance, self._deck)
-        euler_covariance(pose)  # rejects a pose whose covariance cannot be expressed in MAVLink
+        mavlink_covariance = euler_covariance(pose)  # undefined at pitch ±90°: ValueError
+        if max(np.abs(pose.position).max(), np.abs(mavlink_covariance).max()) > FLOAT32_MAX:
+            raise ValueError("pose position or covariance exceeds MAVLink's float32 range")
+        self._forget_pose_ahead_of(now_s)
         if stamp_s <= self._stamp or now_s - stamp_s > self._cfg.stale_timeout_s:
             return False
         self._pose, self._stamp, self._pose_sent = pose, stamp_s, False
         return True
+
+    def _forget_pose_ahead_of(self, now_s: float) -> None:
+        """Drop the held pose if the clock has jumped back behind it (e.g. a restarted replay)."""
+        if self._stamp - now_s > CLOCK_LEAD_TOLERANCE_S:
+            self._pose, self._stamp = None, -math.inf
 
     def on_tracker_state(self, state: int) -> None:
         """Latest ``TrackerStatus.state``; LOST discards the held pose."""
@@ -70,13 +89,14 @@ class GcsBridge:
             raise ValueError(f"unknown tracker state {state!r}")
         self._tracker_state = state
         if state == TRACKER_LOST:
-            self._pose = None
+            self._pose, self._stamp = None, -math.inf
 
     def reset(self) -> None:
         """Operator reset of the stage machine (e.g. after recovery from the net)."""
         self._machine.reset()
 
     def tick(self, now_s: float) -> TickResult:
+        self._forget_pose_ahead_of(now_s)
         fresh = (
             self._pose is not None
             and self._tracker_state == TRACKER_TRACKING

@@ -77,8 +77,8 @@ class StageMachine:
     """The trajectory state machine of Fig. 1.4 (right).
 
     LOITER → APPROACH when a pose is tracked; APPROACH → LAND inside the cone; LAND →
-    NO_RETURN within ``no_return_distance_m``; LAND → GO_AROUND on track loss or on leaving
-    the cone; GO_AROUND → LOITER after ``go_around_hold_s``. A loss during APPROACH returns to
+    NO_RETURN within ``no_return_distance_m``, inside the cone; LAND → GO_AROUND on track loss
+    or outside the cone (a pose outside it never commits the landing); GO_AROUND → LOITER after ``go_around_hold_s``. A loss during APPROACH returns to
     LOITER (the UAV has not started its descent). NO_RETURN holds until ``reset()``.
     """
 
@@ -103,11 +103,11 @@ class StageMachine:
             elif geometry.inside_cone:
                 s = Stage.LAND
         elif s is Stage.LAND:
-            if geometry is not None and geometry.range <= self._cone.no_return_distance_m:
-                s = Stage.NO_RETURN
-            elif geometry is None or not geometry.inside_cone:
+            if geometry is None or not geometry.inside_cone:
                 s = Stage.GO_AROUND
                 self._go_around_since = now_s
+            elif geometry.range <= self._cone.no_return_distance_m:
+                s = Stage.NO_RETURN
         elif s is Stage.GO_AROUND and now_s - self._go_around_since >= self._hold:
             s = Stage.LOITER
         self.stage = s
