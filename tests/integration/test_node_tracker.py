@@ -1,8 +1,10 @@
 """``tracker`` in-process over DDS on rendered frames with hypotheses from the boosting core:
 the pose converges, nothing is published without an estimate, bad input is dropped."""
 
+import dataclasses
 from pathlib import Path
 
+import moderngl
 import numpy as np
 import pytest
 from geometry_msgs.msg import Pose, PoseArray, PoseWithCovarianceStamped
@@ -20,6 +22,7 @@ from uav_landing_vision.geometry import geodesic_angle
 from uav_landing_vision.nodes.base import stamp_ns
 from uav_landing_vision.nodes.image import image_to_numpy
 from uav_landing_vision.nodes.poses import numpy_to_pose, pose_to_numpy
+from uav_landing_vision.nodes import tracker as tracker_node
 from uav_landing_vision.nodes.qos import IMAGE_QOS, RELIABLE_QOS
 from uav_landing_vision.nodes.tracker import TrackerNode
 from uav_landing_vision.tracking.upf import STAGES
@@ -157,6 +160,37 @@ def test_malformed_input_is_dropped_and_tracking_goes_on(ros, generator):
     assert "arrived after their frame was tracked" in rig.node.last_error
     assert rig.send(6, frame_msg(6), boosted_msg(generator, 6)).state != TrackerStatus.LOST
     assert ros.spin_until(lambda: rig.pose_of(6) is not None)
+
+
+def test_a_calibration_it_cannot_use_is_dropped_and_the_last_one_kept(ros, generator, monkeypatch):
+    rig = Rig(ros)
+    rig.send_info()
+    first = rig.node._renderer
+
+    def send(camera):
+        dropped = rig.node.counters["dropped"]
+        rig.info_pub.publish(camera_info_msg(camera))
+        assert ros.spin_until(lambda: rig.node.counters["dropped"] > dropped or rig.node._renderer is not first)
+
+    other = dataclasses.replace(CAMERA, K=CAMERA.K + np.diag([1.0, 1.0, 0.0]))
+    real_renderer = tracker_node.Renderer
+
+    def no_framebuffer(*args, **kwargs):
+        raise moderngl.Error("the framebuffer is not complete")
+
+    monkeypatch.setattr(tracker_node, "Renderer", no_framebuffer)
+    send(other)
+    assert "cannot render at" in rig.node.last_error and rig.node._renderer is first
+    wide = camera_info_msg(CAMERA)
+    wide.width = 20000
+    dropped = rig.node.counters["dropped"]
+    rig.info_pub.publish(wide)
+    assert ros.spin_until(lambda: rig.node.counters["dropped"] > dropped)
+    assert "1..16384 px" in rig.node.last_error
+    assert rig.send(0, frame_msg(0), boosted_msg(generator, 0)).state != TrackerStatus.LOST  # still tracking
+    monkeypatch.setattr(tracker_node, "Renderer", real_renderer)
+    send(other)  # the same calibration, tried again, now taken; the old renderer's GL objects are freed
+    assert rig.node._renderer is not first and type(first._vbo.mglo).__name__ == "InvalidObject"
 
 
 @pytest.mark.parametrize(

@@ -108,7 +108,7 @@ def test_camera_info_fields_round_trip(camera):
         ("image_width: 1280\nimage_height: 720\ncamera_matrix: {rows: 3, cols: 3, data: [1,2]}\n", "needs 9"),
         (
             "image_width: -5\nimage_height: 720\ncamera_matrix: {rows: 3, cols: 3, data: [900,0,1,0,900,1,0,0,1]}\n",
-            "positive",
+            "1..16384 px a side",
         ),
         ("image_width: [1\n", "cannot read"),
     ],
@@ -125,6 +125,8 @@ def test_bad_camera_info_fields():
         camera_from_info_fields(640, 480, "plumb_bob", [0] * 5, [0] * 9)
     with pytest.raises(CameraInfoError, match="not supported"):
         camera_from_info_fields(640, 480, "rational_polynomial", [0] * 8, [500, 0, 320, 0, 500, 240, 0, 0, 1])
+    with pytest.raises(CameraInfoError, match="1..16384 px a side"):  # no remap table or framebuffer that size
+        camera_from_info_fields(2**32 - 1, 1, "plumb_bob", [0] * 5, [500, 0, 320, 0, 500, 240, 0, 0, 1])
 
 
 def test_projection_rejects_points_behind_camera(camera):

@@ -26,6 +26,8 @@ def test_nees_matches_the_hand_computed_distance():
     assert out[0] == pytest.approx(1.0 + 1.0 + 1.0) and np.isnan(out[1])
     unknown = nees(e[:1], np.zeros((1, 3, 3)))  # all zeros: ROS's "unknown covariance", not a region
     assert np.isnan(unknown[0])
+    huge = nees(e[:1], np.stack([np.eye(3) * 1e308]))  # finite, but no statement of uncertainty
+    assert np.isnan(huge[0])
 
 
 def test_errors_drawn_from_the_covariance_are_inside_its_95_percent_region_95_percent_of_the_time():

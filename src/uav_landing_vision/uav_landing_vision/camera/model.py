@@ -11,6 +11,7 @@ import cv2
 import numpy as np
 
 DEFAULT_FRAME_ID = "camera_optical_frame"
+MAX_IMAGE_SIDE = 16384  # px; larger than any deck camera, and GL's usual renderbuffer limit
 
 
 @dataclass(frozen=True)
@@ -28,8 +29,8 @@ class CameraModel:
         dist = np.array(self.dist, dtype=float).ravel()
         if not (isinstance(self.width, (int, np.integer)) and isinstance(self.height, (int, np.integer))):
             raise ValueError(f"camera width/height must be integers, got {self.width!r}, {self.height!r}")
-        if self.width <= 0 or self.height <= 0:
-            raise ValueError(f"camera size must be positive, got {self.width}x{self.height}")
+        if not (0 < self.width <= MAX_IMAGE_SIDE and 0 < self.height <= MAX_IMAGE_SIDE):
+            raise ValueError(f"camera size must be 1..{MAX_IMAGE_SIDE} px a side, got {self.width}x{self.height}")
         if K.shape != (3, 3) or not np.all(np.isfinite(K)):
             raise ValueError("camera matrix K must be a finite 3x3 matrix")
         if K[0, 0] <= 0 or K[1, 1] <= 0 or K[1, 0] != 0 or K[2, 0] != 0 or K[2, 1] != 0 or K[2, 2] != 1:

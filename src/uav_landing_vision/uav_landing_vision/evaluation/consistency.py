@@ -26,13 +26,19 @@ def error_vectors(t_true, q_true, t_est, q_est) -> np.ndarray:
     return out
 
 
+# Larger entries are no statement of uncertainty, and the eigen-decomposition below fails on
+# entries near the float64 limit.
+USABLE_COVARIANCE_MAX = 1e150
+
+
 def nees(errors: np.ndarray, covariances: np.ndarray) -> np.ndarray:
     """``(F,)`` squared Mahalanobis distances ``eᵀ C⁻¹ e`` of ``(F, k)`` errors under ``(F, k, k)``
     covariances; NaN where the error is not finite or the covariance is not finite and positive
-    definite (e.g. all zeros, ROS's "unknown")."""
+    definite (e.g. all zeros, ROS's "unknown"), or has an entry beyond ``USABLE_COVARIANCE_MAX``."""
     e, c = np.asarray(errors, float), np.asarray(covariances, float)
     out = np.full(len(e), np.nan)
     ok = np.all(np.isfinite(e), axis=1) & np.all(np.isfinite(c), axis=(1, 2))
+    ok[ok] = np.abs(c[ok]).max(axis=(1, 2)) <= USABLE_COVARIANCE_MAX
     ok[ok] = np.linalg.eigvalsh(0.5 * (c[ok] + np.swapaxes(c[ok], 1, 2)))[:, 0] > 0.0
     if np.any(ok):
         out[ok] = np.einsum("fi,fi->f", e[ok], np.linalg.solve(c[ok], e[ok][..., None])[..., 0])

@@ -78,11 +78,12 @@ class LandingNode(Node):
                 self.declare_parameter(name, list(value) if isinstance(value, tuple) else value)
         return config
 
-    def take_camera_info(self, calibration, msg) -> bool:
+    def take_camera_info(self, calibration, msg, use=None) -> bool:
         """Update ``calibration`` (a :class:`~.calibration.Calibration`) from a camera_info
-        message: True when it carries a new calibration; an unusable one is dropped."""
+        message, switching the node with ``use(camera)`` first when given: True when it carries
+        a new calibration; an unusable one is dropped."""
         try:
-            return calibration.update(msg)
+            return calibration.update(msg, use)
         except CameraInfoError as exc:
             self.drop(f"camera_info rejected: {exc}")
             return False

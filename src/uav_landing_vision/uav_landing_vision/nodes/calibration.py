@@ -10,15 +10,19 @@ class Calibration:
         self.camera: CameraModel | None = None
         self._key = None
 
-    def update(self, msg) -> bool:
+    def update(self, msg, use=None) -> bool:
         """True when ``msg`` carries a new calibration, now in :attr:`camera`.
 
         A repeat of the current calibration costs a tuple comparison; an invalid one raises
         :class:`~uav_landing_vision.camera.CameraInfoError` and leaves the current camera as is.
+        ``use(camera)``, when given, switches the node to the new camera before it is taken; if
+        it raises CameraInfoError the current camera stays, and a repeat of ``msg`` is tried again.
         """
         key = (msg.width, msg.height, msg.distortion_model, tuple(msg.d), tuple(msg.k), tuple(msg.r))
         if key == self._key:
             return False
         camera = camera_from_info_fields(msg.width, msg.height, msg.distortion_model, msg.d, msg.k, msg.r)
+        if use is not None:
+            use(camera)
         self._key, self.camera = key, camera
         return True

@@ -29,12 +29,14 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import cv2
+import moderngl
 import numpy as np
 from geometry_msgs.msg import Pose, PoseArray, PoseWithCovarianceStamped
 from rclpy.clock import Clock, ClockType
 from sensor_msgs.msg import CameraInfo, Image
 from uav_landing_msgs.msg import PoseHypotheses, TrackerStatus
 
+from ..camera import CameraInfoError
 from ..config import ConfigError
 from ..model import fixed_wing_mesh
 from ..render import Renderer
@@ -94,14 +96,20 @@ class TrackerNode(LandingNode):
         self.create_timer(DEADLINE_CHECK_S, self._on_deadline, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
-        if not self.take_camera_info(self._calibration, msg):
-            return
-        camera = self._calibration.camera
+        self.take_camera_info(self._calibration, msg, use=self._use_camera)
+
+    def _use_camera(self, camera) -> None:
+        try:
+            renderer = Renderer(camera, self._mesh, tile=self.config.tile, max_batch=max(512, self.config.particles))
+        except (ValueError, moderngl.Error) as exc:
+            raise CameraInfoError(f"cannot render at {camera.width}x{camera.height}: {exc}") from exc
         if self._tracker is not None:
             self.get_logger().warn("the calibration changed: the track restarts")
-        self._renderer = Renderer(camera, self._mesh, tile=self.config.tile, max_batch=max(512, self.config.particles))
-        self._tracker = Tracker(self.config, camera, self._renderer)
-        self.get_logger().info(f"calibration {msg.width}x{msg.height} fx={camera.fx:.1f}: tracker ready")
+        if self._renderer is not None:
+            self._renderer.release()
+        self._renderer = renderer
+        self._tracker = Tracker(self.config, camera, renderer)
+        self.get_logger().info(f"calibration {camera.width}x{camera.height} fx={camera.fx:.1f}: tracker ready")
 
     def _on_image(self, msg: Image) -> None:
         self.counters["received"] += 1

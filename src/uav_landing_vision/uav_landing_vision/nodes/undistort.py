@@ -62,8 +62,11 @@ class Undistort(LandingNode):
         self.create_subscription(Image, "camera/image_raw", self._on_image, camera_qos)
 
     def _use_camera(self, camera) -> None:
-        self._camera = camera
-        self._maps = camera.undistortion_maps()
+        try:
+            maps = camera.undistortion_maps()
+        except (cv2.error, MemoryError) as exc:
+            raise CameraInfoError(f"cannot build the {camera.width}x{camera.height} remap tables: {exc}") from exc
+        self._camera, self._maps = camera, maps
         self._rect_info = camera_info_fields(camera.rectified())
         self.get_logger().info(
             f"calibration {camera.width}x{camera.height}, fx={camera.fx:.1f} fy={camera.fy:.1f}, "
@@ -72,8 +75,7 @@ class Undistort(LandingNode):
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
         self.counters["camera_info_received"] += 1
-        if self.take_camera_info(self._calibration, msg):
-            self._use_camera(self._calibration.camera)
+        self.take_camera_info(self._calibration, msg, use=self._use_camera)
 
     def _on_image(self, msg: Image) -> None:
         self.counters["received"] += 1

@@ -92,6 +92,9 @@ class Renderer:
         )  # fmt: skip
 
         size = (self.width, self.height)
+        if max(size) > ctx.info["GL_MAX_RENDERBUFFER_SIZE"]:
+            raise ValueError(f"image {self.width}x{self.height} exceeds the GL renderbuffer limit "
+                             f"{ctx.info['GL_MAX_RENDERBUFFER_SIZE']}")
         self._full_box = np.array([-0.5, -0.5, self.width - 0.5, self.height - 0.5])
         self._full = ctx.framebuffer(color_attachments=[ctx.renderbuffer(size, components=1, dtype="f1")])
         self._full_buf = np.zeros((self.height, self.width), dtype=np.uint8)
@@ -99,6 +102,21 @@ class Renderer:
         self._rgba = ctx.framebuffer(color_attachments=[ctx.renderbuffer(size, components=4, dtype="f1")])
         self._rgba_buf = np.zeros((self.height, self.width, 4), dtype=np.uint8)
         self._msaa: dict[int, moderngl.Framebuffer] = {}
+
+    def release(self) -> None:
+        """Free this renderer's GL objects (moderngl frees none when they are garbage collected);
+        the renderer is unusable afterwards. The shared context stays."""
+        framebuffers = [self._atlas, self._full, self._rgba, *self._msaa.values()]
+        for obj in (self._sil_vao, self._full_vao, self._shade_vao, self._bg_vao, self._vbo, self._ibo,
+                    self._inst_buf, self._one_buf, self._bg_tex, self._sil_prog, self._shade_prog, self._bg_prog):
+            obj.release()
+        for fbo in framebuffers:
+            attachments = [*fbo.color_attachments, fbo.depth_attachment]
+            fbo.release()
+            for attachment in attachments:
+                if attachment is not None:
+                    attachment.release()
+        self._msaa.clear()
 
     @property
     def gl_renderer(self) -> str:
