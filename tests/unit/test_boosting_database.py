@@ -39,6 +39,19 @@ def synthetic(camera):
     return PoseDatabase(sample_orientations(n, (90, 90, 90), rng), obbs, distance=4.0, camera=camera, model="m")
 
 
+@pytest.mark.parametrize("column, value, message", [(3, -5.0, "w >= h > 0"), (4, 0.0, "w >= h > 0"),
+                                                   ("quat", 0.0, "unit quaternions"), ("quat", np.nan, "unit")])
+def test_entries_that_cannot_be_poses_or_boxes_are_refused(camera, column, value, message):
+    quats = sample_orientations(3, (90, 90, 90), np.random.default_rng(1))
+    obbs = np.tile([10.0, 600.0, 300.0, 200.0, 50.0], (3, 1))
+    if column == "quat":
+        quats[1] = value
+    else:
+        obbs[1, column] = value
+    with pytest.raises(DatabaseError, match=message):
+        PoseDatabase(quats, obbs, distance=4.0, camera=camera, model="m")
+
+
 def test_distance_4_4_wraps_theta_every_180_degrees():
     assert obb_distance(179.0, 2.0, 1.0, 2.0) == pytest.approx(2.0)
     assert obb_distance(0.0, 2.0, 180.0, 2.0) == pytest.approx(0.0)

@@ -1,5 +1,6 @@
 """Detector runtime on hand-made cases: letterbox, decode, NMS, ROIs, search window, bad input."""
 
+import cv2
 import numpy as np
 import pytest
 
@@ -9,6 +10,7 @@ from uav_landing_vision.detection.detector import (
     box_iou,
     check_image,
     decode,
+    grow_to_multiple,
     letterbox,
     nms,
     search_window,
@@ -78,6 +80,19 @@ def test_search_window_centred_and_kept_inside():
     assert search_window((600, 300, 20, 10), 1280, 720, 3.0, 192) == (514, 209, 192, 192)
     assert search_window((1270, 700, 10, 10), 1280, 720, 3.0, 192) == (1088, 528, 192, 192)
     assert search_window((0, 0, 400, 300), 1280, 720, 3.0, 192) == (0, 0, 1200, 720)
+
+
+def test_window_grows_to_whole_cells_from_the_frame():
+    assert grow_to_multiple((100, 200, 200, 180), 1280, 720, 32) == (88, 194, 224, 192)
+    assert grow_to_multiple((1200, 600, 70, 100), 1280, 720, 32) == (1184, 586, 96, 128)  # kept inside
+    assert grow_to_multiple((0, 0, 1280, 720), 1280, 720, 32) == (0, 0, 1280, 720)  # the frame is the limit
+    assert grow_to_multiple((10, 10, 192, 192), 1280, 720, 32) == (10, 10, 192, 192)
+
+
+def test_letterbox_can_repeat_the_border_instead_of_grey():
+    image = np.full((20, 30, 3), 7, np.uint8)
+    out, lb = letterbox(image, (64, 64), multiple=32, border=cv2.BORDER_REPLICATE)
+    assert out.shape == (32, 32, 3) and (lb.pad_x, lb.pad_y) == (1, 6) and np.all(out == 7)
 
 
 @pytest.mark.parametrize(

@@ -157,9 +157,15 @@ def test_runtime_on_the_exported_model(exported):
     result = det.detect(frame)
     assert len(result.boxes) == 5 and np.all(result.scores == pytest.approx(1 / (1 + np.exp(-5.0))))
     _, lb = letterbox(frame, (640, 384))
-    np.testing.assert_allclose(result.boxes[0], lb.to_image(np.array([[0, 0, 8, 8]]))[0])  # first cell
+    # the first cells lie in the letterbox's grey band above the frame: the first box is the
+    # first cell of the frame's own rows (input row 16, 4 px below the band), clipped to it
+    assert lb.pad_y == 12
+    np.testing.assert_allclose(result.boxes[0], [0, 0, 16, 8])
+    assert np.all(result.boxes >= 0) and np.all(result.boxes[:, 2:] <= [1280, 720])
     windowed = det.detect(frame, window=(100, 200, 192, 192))
     np.testing.assert_allclose(windowed.boxes[0], [100, 200, 108, 208])  # full resolution in the window
+    grown = det.detect(frame, window=(100, 200, 200, 180))  # grown to 224 × 192 from the frame itself
+    np.testing.assert_allclose(grown.boxes[0], [88, 194, 96, 202])
     with pytest.raises(ValueError, match="uint8"):
         det.detect(frame.astype(np.float32))
 

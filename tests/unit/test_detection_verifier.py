@@ -136,6 +136,12 @@ def test_the_detector_drops_the_boxes_the_verifier_rejects(datasets, tmp_path):
     np.testing.assert_array_equal(passed.boxes, alone.boxes)
     rejected = Detector(DetectorConfig(model=detector, verifier=verifier, verifier_threshold=0.8, threads=1))
     assert not len(rejected.detect(image).scores)
+    seen = []  # in a search window, the verifier still crops the whole frame: its training context
+    windowed = Detector(DetectorConfig(model=detector, verifier=verifier, verifier_threshold=0.7, threads=1))
+    probabilities = windowed.verifier.probabilities
+    windowed.verifier.probabilities = lambda frame, boxes: seen.append(frame.shape) or probabilities(frame, boxes)
+    windowed.detect(image, window=(40, 20, 64, 64))
+    assert seen == [image.shape]
     with pytest.raises(ValueError, match="verifier_threshold"):
         DetectorConfig(verifier_threshold=1.0)
 

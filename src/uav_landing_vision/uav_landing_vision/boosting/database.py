@@ -88,8 +88,12 @@ class PoseDatabase:
         self.obbs = np.asarray(obbs, dtype=np.float32).reshape(-1, 5)
         if len(self.quats) != len(self.obbs) or len(self.quats) == 0:
             raise DatabaseError(f"database needs as many boxes as poses (>0), got {len(self.quats)} and {len(self.obbs)}")
-        if not (np.all(np.isfinite(self.obbs)) and np.all(self.obbs[:, 4] > 0)):
-            raise DatabaseError("database boxes must be finite with positive sides")
+        if not (np.all(np.isfinite(self.obbs)) and np.all(self.obbs[:, 3] >= self.obbs[:, 4])
+                and np.all(self.obbs[:, 4] > 0)):
+            raise DatabaseError("database boxes must be finite with sides w >= h > 0")
+        norms = np.linalg.norm(self.quats, axis=1)
+        if not np.all(np.abs(norms - 1.0) <= 1e-3):  # NaN fails too
+            raise DatabaseError("database rotations must be unit quaternions")
         self.areas = (self.obbs[:, 3] * self.obbs[:, 4]).astype(np.float32)
         self.distance = float(distance)
         self.camera = camera

@@ -94,9 +94,10 @@ def check_image(image) -> np.ndarray:
 
 
 def letterbox(image: np.ndarray, size: tuple[int, int], multiple: int = 32,
-              max_scale: float = 1.0) -> tuple[np.ndarray, Letterbox]:
+              max_scale: float = 1.0, border: int = cv2.BORDER_CONSTANT) -> tuple[np.ndarray, Letterbox]:
     """Resize ``image`` to fit in ``size`` = (width, height) keeping its aspect (scale ≤
-    ``max_scale``), centre it and pad with grey to the next multiple of ``multiple``."""
+    ``max_scale``), centre it and pad to the next multiple of ``multiple``: with grey, or with
+    ``border`` (an OpenCV border mode such as ``cv2.BORDER_REPLICATE``)."""
     h, w = image.shape[:2]
     scale = min(size[0] / w, size[1] / h, max_scale)
     nw, nh = max(1, round(w * scale)), max(1, round(h * scale))
@@ -104,13 +105,13 @@ def letterbox(image: np.ndarray, size: tuple[int, int], multiple: int = 32,
     interp = cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR
     resized = image if (nw, nh) == (w, h) else cv2.resize(image, (nw, nh), interpolation=interp)
     px, py = (pw - nw) // 2, (ph - nh) // 2
-    out = cv2.copyMakeBorder(resized, py, ph - nh - py, px, pw - nw - px, cv2.BORDER_CONSTANT,
+    out = cv2.copyMakeBorder(resized, py, ph - nh - py, px, pw - nw - px, border,
                              value=(PAD_VALUE,) * image.shape[2] if image.ndim == 3 else PAD_VALUE)
     return out, Letterbox(scale, px, py)
 
 
 def sigmoid(x: np.ndarray) -> np.ndarray:
-    return 1.0 / (1.0 + np.exp(-x))
+    return 0.5 * (1.0 + np.tanh(0.5 * np.asarray(x)))  # σ without exp's overflow for large −x
 
 
 def decode(raw: np.ndarray, stride: int, threshold: float) -> tuple[np.ndarray, np.ndarray]:
@@ -154,6 +155,16 @@ def nms(boxes: np.ndarray, scores: np.ndarray, iou: float, limit: int | None = N
         keep.append(best)
         order = order[box_iou(boxes[best], boxes[order])[0] <= iou]
     return np.array(keep, dtype=np.int64)
+
+
+def grow_to_multiple(window, width: int, height: int, multiple: int) -> tuple[int, int, int, int]:
+    """``window`` ``(x, y, w, h)`` grown about its centre to the next multiple of ``multiple`` a
+    side, as far as the image allows, so that the network runs on image pixels, not padding."""
+    x, y, w, h = (int(v) for v in window)
+    gw, gh = min(-(-w // multiple) * multiple, width), min(-(-h // multiple) * multiple, height)
+    x = int(np.clip(x - (gw - w) // 2, 0, width - gw))
+    y = int(np.clip(y - (gh - h) // 2, 0, height - gh))
+    return x, y, gw, gh
 
 
 def search_window(roi, width: int, height: int, grow: float, min_px: int) -> tuple[int, int, int, int]:
@@ -202,33 +213,42 @@ class Detector:
             self.verifier = BoxVerifier(config.verifier, config.threads)
 
     def detect(self, image: np.ndarray, window=None) -> Detections:
-        """Detections in a rectified RGB frame; with ``window`` ``(x, y, w, h)`` only in that
-        region (searched at up to full resolution, so a small window is fast)."""
+        """Detections in a rectified RGB frame, clipped to it; with ``window`` ``(x, y, w, h)``
+        only in that region (searched at up to full resolution, so a small window is fast).
+
+        The window is first grown to whole network cells from the image around it; what the
+        image cannot give is padded with its border pixels, not the grey of the full-frame
+        letterbox: at full resolution a grey band looks like a box to the network."""
         image = check_image(image)
-        ox = oy = 0
-        max_scale = 1.0
-        if window is not None:
+        height, width = image.shape[:2]
+        if window is None:
+            max_scale = min(self.input_size[0] / width, self.input_size[1] / height)
+            boxes, scores = self._infer(image, max_scale, cv2.BORDER_CONSTANT)
+        else:
             from ..boosting.obb import check_roi
 
-            ox, oy, ww, wh = check_roi(window, image.shape[1], image.shape[0])
-            image = image[oy : oy + wh, ox : ox + ww]
-        else:
-            max_scale = min(self.input_size[0] / image.shape[1], self.input_size[1] / image.shape[0])
-        boxes, scores = self._infer(image, max_scale)
-        boxes += np.array([ox, oy, ox, oy], np.float32)
+            window = check_roi(window, width, height)
+            ox, oy, ww, wh = grow_to_multiple(window, width, height, max(self.strides))
+            boxes, scores = self._infer(image[oy : oy + wh, ox : ox + ww], 1.0, cv2.BORDER_REPLICATE)
+            boxes += np.array([ox, oy, ox, oy], np.float32)
+        if self.verifier is not None and len(boxes):  # on the whole frame: the context it was trained on
+            kept = self.verifier.probabilities(image, boxes) >= self.config.verifier_threshold
+            boxes, scores = boxes[kept], scores[kept]
         return Detections(boxes, scores)
 
-    def _infer(self, image: np.ndarray, max_scale: float) -> tuple[np.ndarray, np.ndarray]:
+    def _infer(self, image: np.ndarray, max_scale: float, border: int) -> tuple[np.ndarray, np.ndarray]:
+        """Boxes (in ``image``'s pixels, clipped to it; none wholly in the padding) and scores
+        after NMS, best first."""
         cfg = self.config
-        padded, lb = letterbox(image, self.input_size, max(self.strides), max_scale)
+        padded, lb = letterbox(image, self.input_size, max(self.strides), max_scale, border)
         blob = np.ascontiguousarray(padded.transpose(2, 0, 1)[None], np.float32) * np.float32(1 / 255)
         outputs = self.session.run(None, {self.input_name: blob})
         parts = [decode(out[0], s, cfg.score_threshold) for out, s in zip(outputs, self.strides)]
-        boxes = np.concatenate([p[0] for p in parts])
+        height, width = image.shape[:2]
+        boxes = np.clip(lb.to_image(np.concatenate([p[0] for p in parts])).reshape(-1, 4), 0.0,
+                        np.array([width, height, width, height], np.float32))
         scores = np.concatenate([p[1] for p in parts])
+        inside = (boxes[:, 2] > boxes[:, 0]) & (boxes[:, 3] > boxes[:, 1])
+        boxes, scores = boxes[inside], scores[inside]
         keep = nms(boxes, scores, cfg.nms_iou, cfg.max_detections)
-        boxes, scores = lb.to_image(boxes[keep]).reshape(-1, 4), scores[keep]
-        if self.verifier is not None and len(boxes):
-            kept = self.verifier.probabilities(image, boxes) >= cfg.verifier_threshold
-            boxes, scores = boxes[kept], scores[kept]
-        return boxes, scores
+        return boxes[keep], scores[keep]

@@ -3,8 +3,9 @@
 The one-stage detector takes bright, motion-blurred wave crests and thin cloud edges for a
 distant UAV (model card). The verifier sees each candidate again in a square crop of the
 rectified frame at up to full resolution, with context around the box, and gives the
-probability that the box holds the UAV. :class:`.detector.Detector` multiplies each box's
-score by it. Needs only numpy, OpenCV and onnxruntime.
+probability that the box holds the UAV. :class:`.detector.Detector` drops the boxes below
+``verifier_threshold`` and keeps the scores of the others. Needs only numpy, OpenCV and
+onnxruntime.
 
 Crop of a box ``[x0,y0,x1,y1]``: the square of side ``max(context · max(w, h), min_side_px)``
 centred on the box, resampled to ``crop_px × crop_px`` (area averaging when shrinking, bilinear
