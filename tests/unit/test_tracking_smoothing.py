@@ -52,10 +52,22 @@ def test_an_old_estimate_and_a_reset_leave_the_window():
     np.testing.assert_array_equal(window(4 * DT_NS, q), q)
 
 
-@pytest.mark.parametrize("frames, step", [(0, 0.05), (1.5, 0.05), (2, 0.0), (2, float("nan"))])
-def test_bad_settings_are_refused(frames, step):
+def test_a_turn_beyond_the_limit_restarts_the_window():
+    window = RotationWindow(3, 0.051, max_turn_deg=30.0)
+    a = Rotation.from_rotvec([np.pi / 2, 0.0, 0.0])
+    b = Rotation.from_rotvec([0.0, 0.0, np.radians(160.0)]) * a  # a whole-set flip
+    c = Rotation.from_rotvec([0.0, 0.0, np.radians(10.0)]) * b
+    window(0, a.as_quat())
+    np.testing.assert_array_equal(window(DT_NS, b.as_quat()), b.as_quat())  # not the 80° midpoint
+    expected = Rotation.concatenate([b, c]).mean()  # a is left out with the jump
+    assert close_rotations(window(2 * DT_NS, c.as_quat()), expected.as_quat())
+
+
+@pytest.mark.parametrize("frames, step, turn", [(0, 0.05, 30), (1.5, 0.05, 30), (2, 0.0, 30), (2, float("nan"), 30),
+                                                (2, 0.05, 0.0), (2, 0.05, float("nan"))])
+def test_bad_settings_are_refused(frames, step, turn):
     with pytest.raises(ValueError):
-        RotationWindow(frames, step)
+        RotationWindow(frames, step, turn)
 
 
 def test_stamps_must_increase():

@@ -146,7 +146,7 @@ def test_track_monitor_transitions():
         TrackStateConfig(acquire_likelihood=0.1, lost_likelihood=0.2)
 
 
-def test_covariance_is_the_weighted_particle_spread_in_camera_axes():
+def test_covariance_is_the_weighted_particle_spread_about_the_estimate_in_camera_axes():
     rng = np.random.default_rng(3)
     m = 500
     rot = rng.normal(size=(m, 3)) * np.radians([2.0, 4.0, 1.0])
@@ -158,10 +158,15 @@ def test_covariance_is_the_weighted_particle_spread_in_camera_axes():
     cloud = ParticleSet(pos, quat, np.zeros((m, 3)), np.zeros((m, 3)), w)
     cov = particle_covariance(cloud, TRUE_POS, TRUE_QUAT)
     d = np.hstack([pos - TRUE_POS, rot])
-    ref = np.cov(d.T, aweights=w, bias=True)
+    mean = w @ d / w.sum()
+    # the spread about the cloud's mean plus the estimate's offset from it
+    ref = np.cov(d.T, aweights=w, bias=True) + np.outer(mean, mean)
     np.testing.assert_allclose(cov, ref, atol=1e-10)
+    turned = (Rotation.from_rotvec([0.0, 0.0, 0.3]) * Rotation.from_quat(TRUE_QUAT)).as_quat()  # 17° off the cloud
+    assert particle_covariance(cloud, TRUE_POS, turned)[5, 5] >= 0.3**2 * 0.95
     assert np.all(np.linalg.eigvalsh(cov) >= -1e-12)
-    floored = particle_covariance(cloud.take(np.zeros(m, int)), TRUE_POS, TRUE_QUAT, 0.05, np.radians(1.0))
+    one = cloud.take(np.zeros(m, int))  # every particle at the estimate: the floors alone
+    floored = particle_covariance(one, one.pos[0], one.quat[0], 0.05, np.radians(1.0))
     np.testing.assert_allclose(floored, np.diag([0.05**2] * 3 + [np.radians(1.0) ** 2] * 3), atol=1e-12)
 
 

@@ -107,6 +107,7 @@ class TrackerConfig:
     rotation_prior_max_m: float = 15.0  # no rotation prior while the last estimate is beyond this depth
     estimate: str = "mean"  # ours (best = thesis), see yaml
     rotation_window: int = 2  # ours, 1 = thesis: frames whose estimated rotations are averaged for output
+    rotation_window_max_turn_deg: float = 30.0  # a larger turn from the last estimate restarts the window
     refine: RotationRefinementConfig = field(
         default_factory=lambda: RotationRefinementConfig(candidates=96, sigma_deg=(4.0, 1.5), align_px=0.5))  # ours
 
@@ -140,6 +141,8 @@ class TrackerConfig:
             raise ValueError(f"depth_prior_gate must be non-negative, got {self.depth_prior_gate!r}")
         if int(self.rotation_window) != self.rotation_window or self.rotation_window < 1:
             raise ValueError(f"rotation_window must be a positive integer, got {self.rotation_window!r}")
+        if not self.rotation_window_max_turn_deg > 0:
+            raise ValueError(f"rotation_window_max_turn_deg must be positive, got {self.rotation_window_max_turn_deg!r}")
         if self.estimate not in ESTIMATES:
             raise ValueError(f"estimate must be one of {ESTIMATES}, got {self.estimate!r}")
         if self.variant in ROTATION_FILTER:
@@ -239,14 +242,15 @@ def depth_band(depth: float, bounds_m) -> int:
 
 def particle_covariance(particles: ParticleSet, pos: np.ndarray, quat: np.ndarray,
                         floor_m: float = 0.0, floor_rad: float = 0.0, range_fraction: float = 0.0) -> np.ndarray:
-    """Weighted covariance (6×6, ROS order) of the particles about their weighted mean, in the
-    coordinates ``[p − pos, log(q ⊗ quat⁻¹)]``, plus ``floor²`` on the diagonal and, along the
-    line of sight ``pos``, a variance ``(range_fraction·|pos|)²``."""
+    """Weighted second moment (6×6, ROS order) of the particles about the published estimate
+    ``(pos, quat)``, in the coordinates ``[p − pos, log(q ⊗ quat⁻¹)]`` (so an estimate away from
+    the cloud's mean, e.g. a refined or averaged rotation, widens it by that offset), plus
+    ``floor²`` on the diagonal and, along the line of sight ``pos``, a variance
+    ``(range_fraction·|pos|)²``."""
     w = particles.normalised_weights()
     rot = (Rotation.from_quat(particles.quat) * Rotation.from_quat(quat).inv()).as_rotvec()
     d = np.hstack([particles.pos - pos, rot])
-    dev = d - w @ d
-    cov = (dev * w[:, None]).T @ dev
+    cov = (d * w[:, None]).T @ d
     cov = 0.5 * (cov + cov.T) + np.diag(np.repeat([floor_m**2, floor_rad**2], 3))
     cov[:3, :3] += range_fraction**2 * np.outer(pos, pos)
     return cov
@@ -283,7 +287,7 @@ class Tracker:
         self._fresh: ParticleSet | None = None  # this frame's boosted particles
         self._anchor: float | None = None  # this frame's boosted depth z_b (depth_prior), None: no prior
         self._turn_anchor: np.ndarray | None = None  # last refined rotation (rotation_prior), None: no prior
-        self.window = RotationWindow(config.rotation_window, 1.5 * config.motion.dt)
+        self.window = RotationWindow(config.rotation_window, 1.5 * config.motion.dt, config.rotation_window_max_turn_deg)
 
     @property
     def state(self) -> TrackState:
