@@ -47,6 +47,7 @@ def test_nested_values_and_coercion():
         ({"size": [1, 2, 3]}, "size: expected 2 values"),
         ({"enabled": "yes"}, "enabled: expected bool"),
         ({"count": 0}, "count must be >= 1"),
+        ({1: 2, "foo": 3}, r"unknown key\(s\) \['1', 'foo'\]"),  # keys of mixed types are listed, not sorted as is
     ],
 )
 def test_bad_values_are_named(values, message):
@@ -66,3 +67,12 @@ def test_parameter_file_sections(tmp_path):
     path.write_text("tracker: [\n")
     with pytest.raises(ConfigError, match="cannot read"):
         load_node_parameters(path, "tracker")
+
+
+def test_parameter_file_with_a_repeated_key_is_refused(tmp_path):
+    path = tmp_path / "p.yaml"
+    path.write_text("tracker:\n  ros__parameters:\n    count: 7\n    mode: a\n    count: 8\n")
+    with pytest.raises(ConfigError, match="duplicate key 'count' on line 5"):
+        load_node_parameters(path, "tracker")
+    path.write_text("base: &b {count: 7, mode: a}\ntracker:\n  ros__parameters:\n    <<: *b\n    count: 8\n")
+    assert load_node_parameters(path, "tracker") == {"count": 8, "mode": "a"}  # a merge key may be overridden

@@ -1,6 +1,9 @@
 """Detection dataset: Fig. 4.4 labels (model outline → oriented box → ROI), YOLO labels, landing frames,
 determinism."""
 
+import re
+from dataclasses import replace
+
 import cv2
 import numpy as np
 import pytest
@@ -150,6 +153,24 @@ def test_dataset_is_deterministic_by_seed_whatever_the_workers(tmp_path):
                                                                 sorted((tmp_path / "b").rglob("*.*"))))
     with pytest.raises(ValueError, match="workers"):
         generate(cfg, tmp_path / "c", progress=False, workers=0)
+
+
+def test_an_unfinished_dataset_is_continued_only_with_its_own_settings(tmp_path):
+    camera = CameraModel(192, 108, np.array([[165.0, 0, 96.0], [0, 165.0, 54.0], [0, 0, 1]]))
+    save_camera_info_yaml(camera, tmp_path / "cam.yaml")
+    cfg = DatasetConfig(count=2, seed=7, camera_info=str(tmp_path / "cam.yaml"), families=("normal",),
+                        banks_per_family=1)
+    out = tmp_path / "data"
+    generate(cfg, out, progress=False)
+    (out / "dataset.json").unlink()  # as if interrupted
+    with pytest.raises(ValueError, match=re.escape(f"{out} holds part of a dataset made with other settings (seed)")):
+        generate(replace(cfg, seed=8), out, progress=False)
+    (out / "settings.json").unlink()
+    with pytest.raises(ValueError, match=re.escape(f"{out} holds images but no settings.json")):
+        generate(cfg, out, progress=False)
+    with pytest.raises(FileNotFoundError, match="nosuch.yaml"):  # before anything is written
+        generate(replace(cfg, camera_info="nosuch.yaml"), tmp_path / "other", progress=False)
+    assert not (tmp_path / "other").exists()
 
 
 def test_approach_attitudes_point_the_nose_at_the_camera():

@@ -82,6 +82,16 @@ def test_score_aligns_by_stamp_and_counts_lost_frames():
     assert summary["translation_m"]["median"] == 1.5
 
 
+def test_align_takes_an_empty_truth_and_refuses_repeated_estimate_stamps():
+    quat = np.tile([0, 0, 0, 1.0], (2, 1))
+    est = Poses(np.array([10, 20]), np.zeros((2, 3)), quat)
+    empty = align(Poses(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 4))), est)
+    assert empty.trans.shape == (0, 3) and empty.quat.shape == (0, 4)
+    with pytest.raises(ValueError, match=r"more than one pose at stamp\(s\) \[20\]"):
+        align(Poses(np.array([10, 20]), np.zeros((2, 3)), quat), Poses(np.array([20, 10, 20]), np.zeros((3, 3)),
+                                                                        np.tile([0, 0, 0, 1.0], (3, 1))))
+
+
 def test_summary_schema_roundtrip_and_rejection(tmp_path):
     err = pose_errors(np.zeros((5, 3)), np.tile([0, 0, 0, 1.0], (5, 1)), np.ones((5, 3)), np.tile([0, 0, 0, 1.0], (5, 1)))
     doc = make_summary("seq", 5, {"C4N2": variant_summary(err)})

@@ -109,6 +109,10 @@ def test_load_errors(tmp_path):
     nonfinite.write_text("v 0 0 0\nv 1 0 0\nv 0 nan 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
     with pytest.raises(MeshError, match="non-finite"):
         load_mesh(nonfinite)
+    collinear = tmp_path / "collinear.obj"
+    collinear.write_text("v -0.5 0 0\nv 0.5 0 0\nv 1.0 0 0\nf 1 2 3\n")
+    with pytest.raises(MeshError, match="no surface"):
+        load_mesh(collinear)
 
 
 def test_open_mesh_loads_with_warning(tmp_path):

@@ -23,6 +23,12 @@ def test_shipped_scenarios_load(name):
     ("approach: {}\nbackground: {kind: fog}\n", "background.kind"),
     ("seed: 0\n", "exactly one of"),
     ("approach: {}\nship: {roll_deg: lots}\n", "roll_deg"),
+    ("approach:\n  alpha1_deg: 10.0\n  alpha1_deg: 50.0\n", "duplicate key 'alpha1_deg' on line 3"),
+    ("approach: {}\n1: 2\nfoo: 3\n", r"unknown key\(s\) \['1', 'foo'\]"),
+    ("approach: {}\nseed: -1\n", "seed must be non-negative"),
+    ("approach: {}\nstart_time_s: -5.0\n", "start_time_s must be in"),
+    ("approach: {}\nbackground: {sun_azimuth_deg: .inf}\n", "sun_azimuth_deg and sun_elevation_deg must be finite"),
+    ("approach: {}\nbackground: {sun_elevation_deg: .nan}\n", "sun_azimuth_deg and sun_elevation_deg must be finite"),
 ])
 def test_bad_scenarios_are_clear_errors(tmp_path, text, match):
     path = tmp_path / "bad.yaml"

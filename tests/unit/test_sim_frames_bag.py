@@ -134,3 +134,87 @@ def test_motion_blur_kernel():
     k = motion_blur_kernel(np.array([6.0, 0.0]))
     assert k.sum() == pytest.approx(1.0)
     assert k[k.shape[0] // 2].sum() > 0.9  # a horizontal line
+
+
+@pytest.fixture(scope="module")
+def small_bag(tmp_path_factory):
+    """Two frames of a near approach, as a bag."""
+    s = load_scenario("normal")
+    s = dataclasses.replace(s, approach=dataclasses.replace(s.approach, start_range_m=(12.0, 14.0)))
+    path = tmp_path_factory.mktemp("small") / "bag"
+    simulate(s, path, seed=1, frames=2, progress=False, mesh=MESH)
+    return path
+
+
+def _write_bag(path, topics):
+    """A bag with a connection per ``(topic, type)`` and no messages."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    writer = Writer(path, version=Writer.VERSION_LATEST, storage_plugin=StoragePlugin.MCAP)
+    writer.open()
+    for topic, msgtype in topics:
+        writer.add_connection(topic, msgtype, typestore=get_typestore(Stores.ROS2_JAZZY))
+    writer.close()
+
+
+def test_unreadable_bags_and_topics_are_clear_errors(tmp_path, small_bag):
+    with pytest.raises(ValueError, match=r"cannot read /uav/ground_truth of bag .*missing"):
+        read_poses(tmp_path / "missing")
+    with pytest.raises(ValueError, match=r"topic /camera/image_raw is sensor_msgs/msg/Image, not geometry_msgs"):
+        read_poses(small_bag, "/camera/image_raw")
+    with pytest.raises(ValueError, match="topic /uav/ground_truth is geometry_msgs/msg/PoseStamped, not sensor_msgs"):
+        next(iter_frames(small_bag, "/uav/ground_truth"))
+    truncated = tmp_path / "truncated"
+    truncated.mkdir()
+    for part in small_bag.iterdir():
+        data = part.read_bytes()
+        (truncated / part.name).write_bytes(data[: len(data) // 2] if part.suffix == ".mcap" else data)
+    with pytest.raises(ValueError, match=r"cannot read .* of bag .*truncated"):
+        list(iter_frames(truncated))
+    _write_bag(tmp_path / "empty", [("/camera/camera_info", "sensor_msgs/msg/CameraInfo")])
+    with pytest.raises(ValueError, match="no message on /camera/camera_info"):
+        read_camera(tmp_path / "empty")
+
+
+def test_pose_csv_rows_are_checked(tmp_path):
+    header = "stamp_ns,x,y,z,qx,qy,qz,qw\n"
+    for body, match in (("1,0,0,0,0,0,0\n", "line 2 has fewer than the 8 columns"),
+                        ("1,0,0,0,0,0,0,1\n2,abc,0,0,0,0,0,1\n", "line 3: could not convert string to float: 'abc'"),
+                        ("", "no poses")):
+        (tmp_path / "poses.csv").write_text(header + body)
+        with pytest.raises(ValueError, match=match):
+            read_poses(tmp_path / "poses.csv")
+
+
+def test_an_interrupted_simulation_leaves_nothing_to_reuse(tmp_path, monkeypatch):
+    """Stopped after one frame, ``simulate`` leaves no bag, PNG folder or staging folder, so
+    the demo simulates the landing again instead of taking up a one-frame bag."""
+    from uav_landing_vision.demo import simulated_bag
+    from uav_landing_vision.sim.bag import SequenceWriter
+
+    write, calls = SequenceWriter.write, []
+
+    def interrupted(self, *args):
+        calls.append(args[0])
+        if len(calls) % 2 == 0:  # the second frame of each run
+            raise KeyboardInterrupt
+        write(self, *args)
+
+    monkeypatch.setattr(SequenceWriter, "write", interrupted)
+    s = load_scenario("normal")
+    with pytest.raises(KeyboardInterrupt):
+        simulate(s, tmp_path / "bag", frames=2, png_dir=tmp_path / "png", progress=False, mesh=MESH)
+    assert list(tmp_path.iterdir()) == []
+    with pytest.raises(KeyboardInterrupt):
+        simulated_bag(tmp_path / "bags", "normal", 0, 2)
+    monkeypatch.setattr(SequenceWriter, "write", write)
+    assert len(read_poses(simulated_bag(tmp_path / "bags", "normal", 0, 2)).stamps_ns) == 2
+
+
+def test_an_existing_png_folder_leaves_no_bag(tmp_path):
+    (tmp_path / "png").mkdir()
+    with pytest.raises(FileExistsError, match="png"):
+        simulate(load_scenario("normal"), tmp_path / "bag", frames=1, png_dir=tmp_path / "png", progress=False,
+                 mesh=MESH)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["png"]

@@ -120,6 +120,29 @@ def test_cli_writes_json_and_plots(bag, tmp_path, capsys):
     assert "roi_source=oracle" in capsys.readouterr().out
 
 
+def test_cli_takes_particles_and_metric_from_the_config_file(bag, tmp_path, monkeypatch):
+    """Without --particles or --metric, ``evaluate --config`` runs the file's M and metric."""
+    import importlib
+
+    doc = yaml.safe_load(config_path("tracker.yaml").read_text())
+    doc["tracker"]["ros__parameters"].update(particles=40, metric="contour")
+    (tmp_path / "tracker.yaml").write_text(yaml.safe_dump(doc))
+    used = []
+
+    class Stop(Exception):
+        pass
+
+    def tracker(config, *args):
+        used.append(config)
+        raise Stop
+
+    monkeypatch.setattr(importlib.import_module("uav_landing_vision.tracking.evaluate"), "Tracker", tracker)
+    with pytest.raises(Stop):
+        main(["evaluate", "--bag", str(bag), "--config", str(tmp_path / "tracker.yaml"), "--roi-source", "oracle",
+              "--variants", "C1N0"])
+    assert (used[0].particles, used[0].metric) == (40, "contour")
+
+
 def test_variant_lists():
     assert parse_variants("C1N0, c4n2,C1N0") == ["C1N0", "C4N2"]
     for bad in ("", "C4N2,C9N1", "C4"):

@@ -35,6 +35,9 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+    except (ValueError, OSError) as exc:  # a bad input or file that a command did not report itself
+        print(f"uav-landing {args.command}: {exc}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

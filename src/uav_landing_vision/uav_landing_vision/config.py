@@ -8,6 +8,7 @@ sections and values of the wrong type are errors that name the file and the key.
 import dataclasses
 import types
 import typing
+from collections.abc import Hashable
 from pathlib import Path
 
 import yaml
@@ -17,11 +18,29 @@ class ConfigError(ValueError):
     """A configuration file or value that cannot be used."""
 
 
+class UniqueKeyLoader(yaml.SafeLoader):
+    """PyYAML's safe loader, except that a mapping giving the same key twice is an error."""
+
+    def construct_mapping(self, node, deep=False):
+        seen = set()
+        for key_node, _ in node.value:
+            if key_node.tag == "tag:yaml.org,2002:merge":  # "<<: *anchor" keys may be overridden
+                continue
+            key = self.construct_object(key_node, deep=True)
+            if not isinstance(key, Hashable):  # the base class reports it
+                continue
+            if key in seen:
+                raise yaml.constructor.ConstructorError(
+                    problem=f"duplicate key {key!r} on line {key_node.start_mark.line + 1}")
+            seen.add(key)
+        return super().construct_mapping(node, deep)
+
+
 def load_node_parameters(path, node: str) -> dict:
     """The ``ros__parameters`` mapping of ``node`` in a ROS 2 parameter file."""
     path = Path(path)
     try:
-        doc = yaml.safe_load(path.read_text())
+        doc = yaml.load(path.read_text(), UniqueKeyLoader)
     except (OSError, yaml.YAMLError) as exc:
         raise ConfigError(f"cannot read parameter file {path}: {exc}") from exc
     if not isinstance(doc, dict) or node not in doc:
@@ -43,7 +62,7 @@ def from_mapping(cls, values: dict, where: str = ""):
     if not isinstance(values, dict):
         raise ConfigError(f"{prefix}expected a mapping for {cls.__name__}, got {type(values).__name__}")
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
-    unknown = sorted(set(values) - set(fields))
+    unknown = sorted(map(str, set(values) - set(fields)))
     if unknown:
         raise ConfigError(f"{prefix}unknown key(s) {unknown} for {cls.__name__}; known: {sorted(fields)}")
     hints = typing.get_type_hints(cls)

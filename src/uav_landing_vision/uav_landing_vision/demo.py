@@ -36,7 +36,9 @@ def _run(args) -> int:
     from .sim import read_pose_csv
 
     if args.frames is not None and args.frames < 1:
-        raise SystemExit("--frames must be at least 1")
+        raise SystemExit("uav-landing demo: --frames must be at least 1")
+    if args.seed is not None and args.seed < 0:
+        raise SystemExit("uav-landing demo: --seed must be non-negative")
     out = args.out.resolve()
     bag = simulated_bag(out / "bags", args.scenario, args.seed, args.frames)
     report = out / "evaluation"
@@ -46,9 +48,9 @@ def _run(args) -> int:
     env = node_environment(args.domain_id)
     code = Graph(list(GRAPH_NODES), config_path("tracker.yaml").parent, overrides, env, stop_timeout=10.0).run()
     if code != 0:
-        raise SystemExit(f"demo: the graph failed (exit {code}); see the node logs above")
+        raise SystemExit(f"uav-landing demo: the graph failed (exit {code}); see the node logs above")
     if not (report / "tables.txt").is_file():
-        raise SystemExit(f"demo: the evaluator wrote no report in {report}")
+        raise SystemExit(f"uav-landing demo: the evaluator wrote no report in {report}")
     print((report / "tables.txt").read_text())
     strip = overlay_strip(bag, read_pose_csv(report / "estimates.csv"), out / "overlay_strip.png", args.strip)
     print(f"[demo] report, error plots and estimates in {report}/; overlay strip {strip}")
@@ -80,17 +82,12 @@ def simulated_bag(folder: Path, scenario: str, seed: int | None, frames: int | N
     try:
         sc = load_scenario(scenario)
     except ScenarioError as exc:
-        raise SystemExit(f"demo: {exc}") from exc
+        raise SystemExit(f"uav-landing demo: {exc}") from exc
     seed = sc.seed if seed is None else seed
     bag = folder / f"{sc.name}_seed{seed}" if frames is None else folder / f"{sc.name}_seed{seed}_{frames}frames"
-    if (bag / "metadata.yaml").is_file():
+    if (bag / "metadata.yaml").is_file():  # simulate() makes the folder only once the bag is complete
         print(f"[demo] using the simulated landing {bag}", flush=True)
         return bag
-    if bag.exists():  # an interrupted simulation
-        import shutil
-
-        shutil.rmtree(bag)
-    folder.mkdir(parents=True, exist_ok=True)
     result = simulate(sc, bag, seed=seed, frames=frames)
     print(f"[demo] simulated {result.frames} frames in {result.seconds:.0f} s: {bag}", flush=True)
     return bag

@@ -57,15 +57,18 @@ def _build(args) -> int:
 
     from .database import FULL_SPHERE_DEG, DatabaseConfig, build_database
 
-    camera, mesh = _load_camera_and_mesh(args)
-    config = DatabaseConfig(
-        count=args.count, distance=args.distance, seed=args.seed,
-        half_range_deg=FULL_SPHERE_DEG if args.full_sphere else tuple(args.half_range_deg),
-    )
-    command = "uav-landing " + shlex.join(sys.argv[1:]) if sys.argv[1:] else "uav-landing build-database"
-    start = time.perf_counter()
-    db = build_database(camera, mesh, config, command=command, progress=not args.quiet)
-    path = db.save(args.out)
+    try:
+        camera, mesh = _load_camera_and_mesh(args)
+        config = DatabaseConfig(
+            count=args.count, distance=args.distance, seed=args.seed,
+            half_range_deg=FULL_SPHERE_DEG if args.full_sphere else tuple(args.half_range_deg),
+        )
+        command = "uav-landing " + shlex.join(sys.argv[1:]) if sys.argv[1:] else "uav-landing build-database"
+        start = time.perf_counter()
+        db = build_database(camera, mesh, config, command=command, progress=not args.quiet)
+        path = db.save(args.out)
+    except (ValueError, OSError) as exc:  # CameraInfoError, MeshError, DatabaseError, bad settings, files
+        raise SystemExit(f"uav-landing build-database: {exc}") from None
     print(f"wrote {len(db)} entries ({config.count - len(db)} degenerate dropped) to {path} "
           f"({path.stat().st_size / 1024:.0f} KiB) in {time.perf_counter() - start:.1f} s")
     return 0
@@ -77,14 +80,17 @@ def _evaluate(args) -> int:
     from .evaluation import BoostingEvalConfig, evaluate_boosting, format_tables
 
     if args.samples < 1 or min(args.top) < 1 or min(args.distances) <= 0:
-        raise SystemExit("--samples and --top must be positive, --distances above zero")
-    camera, mesh = _load_camera_and_mesh(args)
-    config = BoostingEvalConfig(
-        samples=args.samples, distances=tuple(args.distances), top=tuple(sorted(set(args.top))),
-        seed=args.seed, placement=args.placement, centre_offset=not args.thesis_centre,
-        aspect_weight=args.aspect_weight,
-    )
-    result = evaluate_boosting(camera, mesh, config, database_path=args.database, progress=not args.quiet)
+        raise SystemExit("uav-landing eval-boosting: --samples and --top must be positive, --distances above zero")
+    try:
+        camera, mesh = _load_camera_and_mesh(args)
+        config = BoostingEvalConfig(
+            samples=args.samples, distances=tuple(args.distances), top=tuple(sorted(set(args.top))),
+            seed=args.seed, placement=args.placement, centre_offset=not args.thesis_centre,
+            aspect_weight=args.aspect_weight,
+        )
+        result = evaluate_boosting(camera, mesh, config, database_path=args.database, progress=not args.quiet)
+    except (ValueError, OSError) as exc:  # CameraInfoError, MeshError, DatabaseError, bad settings, files
+        raise SystemExit(f"uav-landing eval-boosting: {exc}") from None
     print(format_tables(result))
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)

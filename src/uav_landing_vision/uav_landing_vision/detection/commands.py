@@ -101,8 +101,8 @@ def _make_data(args) -> int:
                             landing_sun_spread_deg=args.landing_sun_spread, banks_per_family=args.banks_per_family,
                             label_box=args.label_box)
         summary = generate(cfg, args.out, workers=args.workers)
-    except (ValueError, FileExistsError) as exc:
-        raise SystemExit(f"make-detection-data: {exc}") from None
+    except (ValueError, OSError) as exc:  # CameraInfoError, a camera file or folder that is not there
+        raise SystemExit(f"uav-landing make-detection-data: {exc}") from None
     print(f"wrote {summary['images']} images ({summary['positives']} with the UAV) to {args.out}")
     return 0
 
@@ -155,7 +155,7 @@ def _train_verifier(args) -> int:
         train_verifier(cfg, resume=args.resume)
         state = load_checkpoint(cfg)
     except (FileNotFoundError, ValueError) as exc:
-        raise SystemExit(f"train-verifier: {exc}") from None
+        raise SystemExit(f"uav-landing train-verifier: {exc}") from None
     log = state["log"]
     last = log["epochs"][-1]
     description = (f"BoxVerifierNet width {cfg.width}, {log['train_crops']} training crops mined with "
@@ -174,10 +174,10 @@ def _evaluate(args) -> int:
     try:
         cfg = DetectorConfig(model=args.model, verifier=verifier, verifier_threshold=args.verifier_threshold,
                              score_threshold=args.threshold, threads=args.threads)
-    except ValueError as exc:
-        raise SystemExit(f"eval-detector: {exc}") from None
-    png = args.png or args.json.with_suffix(".png")
-    r = evaluate_bag(args.bag, cfg, args.json, png, truth_box=args.truth_box)
+        png = args.png or args.json.with_suffix(".png")
+        r = evaluate_bag(args.bag, cfg, args.json, png, truth_box=args.truth_box)
+    except (ValueError, OSError) as exc:  # a bag that cannot be read or lacks a topic, a missing model
+        raise SystemExit(f"uav-landing eval-detector: {exc}") from None
     print(f"AP50 {r['ap50']:.3f}  precision {r['precision']:.3f}  recall {r['recall']:.3f} at {r['threshold']}  "
           f"FP/100 frames {r['false_positives_per_100_frames']:.1f} (best box only "
           f"{r['best_box_false_positives_per_100_frames']:.1f})  median {r['ms_per_frame']:.1f} ms/frame")

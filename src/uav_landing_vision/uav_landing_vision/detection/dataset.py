@@ -13,8 +13,8 @@ is labelled when at least ``min_visible_px`` pixels of its rendered coverage pas
 ``coverage_threshold``, else it is drawn again.
 
 Layout: ``images/NNNNNN.jpg``, ``labels/NNNNNN.txt`` (YOLO: ``0 cx cy w h`` normalised to the
-image, empty for a negative) and ``dataset.json`` (settings, counts). Image ``i`` depends only
-on ``(seed, i)`` and the settings.
+image, empty for a negative), ``settings.json`` (written first) and ``dataset.json`` (settings,
+counts; written last, when complete). Image ``i`` depends only on ``(seed, i)`` and the settings.
 """
 
 import json
@@ -462,11 +462,30 @@ def _write_images(out: Path, indices) -> list[float | None]:
     return widths
 
 
+def _record_settings(cfg: DatasetConfig, out: Path) -> None:
+    """Write ``out/settings.json`` (atomically), or check that the unfinished run in ``out`` had the
+    same settings; images without that record are refused too."""
+    settings = json.loads(json.dumps(asdict(cfg)))
+    path = out / "settings.json"
+    if path.exists():
+        recorded = json.loads(path.read_text())
+        differ = sorted(k for k in settings.keys() | recorded.keys() if settings.get(k) != recorded.get(k))
+        if differ:
+            raise ValueError(f"{out} holds part of a dataset made with other settings ({', '.join(differ)}); "
+                             "give the same settings to continue it, or choose a new folder")
+        return
+    if any(p for sub in ("images", "labels") for p in (out / sub).glob("*")):
+        raise ValueError(f"{out} holds images but no settings.json to tell what made them; choose a new folder")
+    out.mkdir(parents=True, exist_ok=True)
+    path.with_suffix(".tmp").write_text(json.dumps(settings, indent=2))
+    path.with_suffix(".tmp").replace(path)
+
+
 def generate(cfg: DatasetConfig, out_dir, progress: bool = True, workers: int = 1) -> dict:
     """Write the dataset to ``out_dir`` (which must not hold one yet); return its summary.
 
-    An interrupted run is continued by running it again: images whose label exists are kept
-    (image ``i`` depends only on ``(seed, i)``).
+    An interrupted run is continued by running it again with the same settings (any other is
+    refused): images whose label exists are kept (image ``i`` depends only on ``(seed, i)``).
 
     ``workers`` > 1 spreads the images over that many processes (each with its own GL
     context); image ``i`` is the same whichever process makes it."""
@@ -480,9 +499,10 @@ def generate(cfg: DatasetConfig, out_dir, progress: bool = True, workers: int = 
     out = Path(out_dir)
     if (out / "dataset.json").exists():
         raise FileExistsError(f"{out} already holds a dataset; choose a new folder")
-    (out / "images").mkdir(parents=True, exist_ok=True)
-    (out / "labels").mkdir(parents=True, exist_ok=True)
     camera = dataset_camera(cfg)
+    _record_settings(cfg, out)
+    (out / "images").mkdir(exist_ok=True)
+    (out / "labels").mkdir(exist_ok=True)
     chunks = [range(a, min(a + 25, cfg.count)) for a in range(0, cfg.count, 25)]
     bar = tqdm(total=cfg.count, desc="detection data", unit="img", disable=not progress)
     widths: list[float | None] = []

@@ -64,10 +64,14 @@ class VerifierTrainConfig:
 _miner: tuple = ()  # (config, detector) of a mining process, made once by _start_miner
 
 
+def _mining_detector(cfg: VerifierTrainConfig) -> Detector:
+    return Detector(DetectorConfig(model=cfg.detector, verifier="", score_threshold=cfg.mine_threshold,
+                                   max_detections=MINE_MAX_BOXES, threads=1))
+
+
 def _start_miner(cfg: VerifierTrainConfig) -> None:
     global _miner
-    _miner = (cfg, Detector(DetectorConfig(model=cfg.detector, verifier="", score_threshold=cfg.mine_threshold,
-                                           max_detections=MINE_MAX_BOXES, threads=1)))
+    _miner = (cfg, _mining_detector(cfg))
 
 
 def _mine_images(items) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
@@ -108,6 +112,8 @@ def mine_crops(cfg: VerifierTrainConfig, progress: bool = True) -> dict:
         cached = np.load(path, allow_pickle=False)
         if json.loads(str(cached["mining"])) == json.loads(json.dumps(cfg.mining())):
             return {k: cached[k] for k in ("crops", "labels", "source", "validation")}
+    # Loaded here first: a pool whose initializer fails restarts its workers for ever.
+    _mining_detector(cfg)
     items = []
     for folder, root in enumerate(cfg.data):
         meta_path = Path(root) / "dataset.json"

@@ -22,11 +22,11 @@ def _run(args) -> int:
 
     for path, what in ((args.truth, "--truth"), (args.estimate, "--estimate")):
         if not path.exists():
-            raise SystemExit(f"{what}: {path} does not exist")
+            raise SystemExit(f"uav-landing score: {what} {path} does not exist")
     try:
         errors, ms = score_files(args.truth, args.estimate, args.topic)
     except ValueError as exc:
-        raise SystemExit(f"cannot score: {exc}") from exc
+        raise SystemExit(f"uav-landing score: {exc}") from exc
     sequence = args.truth.resolve().name
     if args.report_dir:
         print(write_report(args.report_dir, sequence, {args.name: errors}))

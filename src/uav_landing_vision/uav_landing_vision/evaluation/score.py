@@ -10,9 +10,14 @@ from .statistics import pose_errors
 
 
 def align(truth: Poses, estimate: Poses) -> Poses:
-    """The estimate at each ground-truth stamp (exact match); NaN where there is none (lost)."""
+    """The estimate at each ground-truth stamp (exact match); NaN where there is none (lost).
+    An estimate with more than one pose at a stamp is a ValueError."""
+    stamps, counts = np.unique(estimate.stamps_ns, return_counts=True)
+    if np.any(counts > 1):
+        raise ValueError(f"the estimate has more than one pose at stamp(s) {stamps[counts > 1][:3].tolist()}; "
+                         "give one per frame")
     index = {int(s): i for i, s in enumerate(estimate.stamps_ns)}
-    rows = np.array([index.get(int(s), -1) for s in truth.stamps_ns])
+    rows = np.array([index.get(int(s), -1) for s in truth.stamps_ns], dtype=int)
     found = rows >= 0
     trans = np.full((len(rows), 3), np.nan)
     quat = np.full((len(rows), 4), np.nan)
@@ -41,6 +46,8 @@ def score_files(truth_path, estimate_path, topic: str = "") -> tuple[dict[str, n
     """Errors of an estimate file (CSV, or bag topic ``topic``, default ``/uav/pose``) against a
     ground truth (bag or simulator PNG folder), and the estimate's mean ms per frame if known."""
     truth = read_poses(truth_path)
+    if not len(truth.stamps_ns):
+        raise ValueError(f"{truth_path} holds no ground-truth pose")
     estimate_path = Path(estimate_path)
     estimate = read_poses(estimate_path, topic or "/uav/pose")
     return score(truth, estimate), mean_ms_per_frame(estimate_path)

@@ -39,7 +39,10 @@ def load_mesh(path, unit: str = "m") -> Mesh:
         raise MeshError(f"mesh file {path} has non-finite vertex coordinates")
     loaded.merge_vertices()  # STL stores each triangle's corners separately
     vertices = np.asarray(loaded.vertices, dtype=float)
-    extent = float(np.ptp(vertices, axis=0).max()) * UNITS[unit]
+    size = float(np.ptp(vertices, axis=0).max())  # in the file's unit, as the area
+    if loaded.area <= 1e-12 * size**2:  # zero up to rounding
+        raise MeshError(f"mesh file {path} has no surface: every triangle is degenerate (zero area)")
+    extent = size * UNITS[unit]
     if not MIN_EXTENT_M <= extent <= MAX_EXTENT_M:
         raise MeshError(_size_message(path, unit, extent))
     if loaded.is_watertight:

@@ -11,7 +11,8 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+from rosbags.rosbag2 import Reader, ReaderError, StoragePlugin, Writer
+from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
 
 from ..camera import CameraModel, camera_from_info_fields, camera_info_fields, save_camera_info_yaml
@@ -20,6 +21,8 @@ IMAGE_TOPIC = "/camera/image_raw"
 INFO_TOPIC = "/camera/camera_info"
 TRUTH_TOPIC = "/uav/ground_truth"
 POSE_TYPES = ("geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/PoseWithCovarianceStamped")
+IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
+INFO_TYPES = ("sensor_msgs/msg/CameraInfo",)
 CSV_HEADER = ["stamp_ns", "x", "y", "z", "qx", "qy", "qz", "qw"]
 
 _TS = get_typestore(Stores.ROS2_JAZZY)
@@ -39,6 +42,14 @@ class SequenceWriter:
 
     def __init__(self, bag_dir, camera: CameraModel, png_dir=None, compress: bool = False):
         self.camera = camera
+        self.png_dir = Path(png_dir) if png_dir else None
+        self._csv = None
+        if self.png_dir:  # first, so that a PNG folder that exists leaves no bag behind
+            self.png_dir.mkdir(parents=True, exist_ok=False)
+            save_camera_info_yaml(camera, self.png_dir / "camera_info.yaml")
+            self._csv_file = (self.png_dir / "ground_truth.csv").open("w", newline="")
+            self._csv = csv.writer(self._csv_file)
+            self._csv.writerow(CSV_HEADER)
         self.writer = Writer(Path(bag_dir), version=Writer.VERSION_LATEST, storage_plugin=StoragePlugin.MCAP)
         if compress:
             self.writer.set_compression(Writer.CompressionMode.STORAGE, Writer.CompressionFormat.ZSTD)
@@ -51,14 +62,6 @@ class SequenceWriter:
         info = camera_info_fields(camera)
         self._info = dict(height=info["height"], width=info["width"], distortion_model=info["distortion_model"],
                           d=np.array(info["d"]), k=np.array(info["k"]), r=np.array(info["r"]), p=np.array(info["p"]))
-        self.png_dir = Path(png_dir) if png_dir else None
-        self._csv = None
-        if self.png_dir:
-            self.png_dir.mkdir(parents=True, exist_ok=False)
-            save_camera_info_yaml(camera, self.png_dir / "camera_info.yaml")
-            self._csv_file = (self.png_dir / "ground_truth.csv").open("w", newline="")
-            self._csv = csv.writer(self._csv_file)
-            self._csv.writerow(CSV_HEADER)
 
     def write(self, stamp_ns: int, image_rgb: np.ndarray, trans: np.ndarray, quat: np.ndarray) -> None:
         m = _TS.types
@@ -114,34 +117,43 @@ def _decode_image(msg) -> np.ndarray:
 
 
 def _topic_messages(path, topic: str, types: tuple[str, ...]):
-    """Deserialised messages of ``topic`` (or of the first topic with one of ``types`` if empty)."""
-    with Reader(Path(path)) as reader:
-        conns = [c for c in reader.connections if (c.topic == topic if topic else c.msgtype in types)]
-        if not conns:
-            found = sorted(f"{c.topic} [{c.msgtype}]" for c in reader.connections)
-            raise ValueError(f"{path}: no topic {topic or 'of type ' + ' or '.join(types)}; has {found}")
-        conns = [c for c in conns if c.topic == conns[0].topic]
-        for conn, _, raw in reader.messages(connections=conns):
-            yield _TS.deserialize_cdr(raw, conn.msgtype)
+    """Deserialised messages of ``topic`` (or of the first topic with one of ``types`` if empty).
+    A missing or unreadable bag or topic, or a topic of another type, is a ValueError naming both."""
+    try:
+        with Reader(Path(path)) as reader:
+            conns = [c for c in reader.connections if (c.topic == topic if topic else c.msgtype in types)]
+            if not conns:
+                found = sorted(f"{c.topic} [{c.msgtype}]" for c in reader.connections)
+                raise ValueError(f"{path}: no topic {topic or 'of type ' + ' or '.join(types)}; has {found}")
+            conns = [c for c in conns if c.topic == conns[0].topic]
+            wrong = sorted({c.msgtype for c in conns} - set(types))
+            if wrong:
+                raise ValueError(f"{path}: topic {conns[0].topic} is {', '.join(wrong)}, not {' or '.join(types)}")
+            for conn, _, raw in reader.messages(connections=conns):
+                yield _TS.deserialize_cdr(raw, conn.msgtype)
+    except (ReaderError, SerdeError, FileNotFoundError) as exc:
+        what = topic or f"the {' or '.join(types)} topic"
+        raise ValueError(f"cannot read {what} of bag {path}: {exc}") from exc
 
 
 def iter_images(path, topic: str = IMAGE_TOPIC):
     """RGB frames of an image topic of a bag (empty topic: the first Image/CompressedImage topic)."""
-    for msg in _topic_messages(path, topic, ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")):
+    for msg in _topic_messages(path, topic, IMAGE_TYPES):
         yield _decode_image(msg)
 
 
 def iter_frames(path, topic: str = IMAGE_TOPIC):
     """``(stamp_ns, rgb image)`` pairs of a bag's image topic, in order."""
-    for msg in _topic_messages(path, topic, ()):
+    for msg in _topic_messages(path, topic, IMAGE_TYPES):
         yield _stamp(msg.header), _decode_image(msg)
 
 
 def read_camera(path, topic: str = INFO_TOPIC) -> CameraModel:
     """The camera of the first camera_info message of a bag."""
-    msg = next(_topic_messages(path, topic, ()))
-    return camera_from_info_fields(msg.width, msg.height, msg.distortion_model, msg.d, msg.k, msg.r,
-                                   frame_id=msg.header.frame_id or "camera_optical_frame")
+    for msg in _topic_messages(path, topic, INFO_TYPES):
+        return camera_from_info_fields(msg.width, msg.height, msg.distortion_model, msg.d, msg.k, msg.r,
+                                       frame_id=msg.header.frame_id or "camera_optical_frame")
+    raise ValueError(f"{path}: no message on {topic or 'a camera_info topic'}")
 
 
 def read_poses(path, topic: str = "") -> Poses:
@@ -155,7 +167,7 @@ def read_poses(path, topic: str = "") -> Poses:
     if path.suffix == ".csv":
         return read_pose_csv(path)
     stamps, trans, quat = [], [], []
-    for msg in _topic_messages(path, topic or TRUTH_TOPIC, ()):
+    for msg in _topic_messages(path, topic or TRUTH_TOPIC, POSE_TYPES):
         pose = msg.pose.pose if hasattr(msg.pose, "covariance") else msg.pose
         stamps.append(_stamp(msg.header))
         trans.append([pose.position.x, pose.position.y, pose.position.z])
@@ -166,14 +178,22 @@ def read_poses(path, topic: str = "") -> Poses:
 def read_pose_csv(path) -> Poses:
     """Poses from a CSV with the columns ``stamp_ns,x,y,z,qx,qy,qz,qw`` (extra columns ignored)."""
     with Path(path).open(newline="") as f:
-        rows = list(csv.DictReader(f))
-    missing = [c for c in CSV_HEADER if rows and c not in rows[0]]
-    if not rows or missing:
-        raise ValueError(f"{path}: needs a header with {CSV_HEADER} and at least one row (missing {missing})")
-    col = {c: np.array([float(r[c]) for r in rows]) for c in CSV_HEADER[1:]}
-    stamps = np.array([int(r["stamp_ns"]) for r in rows], np.int64)
-    return Poses(stamps, np.stack([col["x"], col["y"], col["z"]], -1),
-                 np.stack([col["qx"], col["qy"], col["qz"], col["qw"]], -1))
+        reader = csv.DictReader(f)
+        missing = [c for c in CSV_HEADER if c not in (reader.fieldnames or [])]
+        if missing:
+            raise ValueError(f"{path}: needs a header with {CSV_HEADER} (missing {missing})")
+        rows = []
+        for row in reader:
+            if any(row[c] is None for c in CSV_HEADER):
+                raise ValueError(f"{path}: line {reader.line_num} has fewer than the {len(CSV_HEADER)} columns")
+            try:
+                rows.append((int(row["stamp_ns"]), *(float(row[c]) for c in CSV_HEADER[1:])))
+            except ValueError as exc:
+                raise ValueError(f"{path}: line {reader.line_num}: {exc}") from None
+    if not rows:
+        raise ValueError(f"{path}: no poses (needs at least one row)")
+    values = np.array([r[1:] for r in rows], float)
+    return Poses(np.array([r[0] for r in rows], np.int64), values[:, :3], values[:, 3:])
 
 
 def write_pose_csv(path, poses: Poses) -> None:

@@ -16,20 +16,28 @@ def register(sub) -> None:
     p.set_defaults(func=_run)
 
 
+def _refusal(message) -> SystemExit:
+    return SystemExit(f"uav-landing simulate: {message}")
+
+
 def _run(args) -> int:
+    from ..camera import CameraInfoError
     from .backgrounds import BackgroundError
     from .config import ScenarioError, load_scenario
     from .simulate import simulate
 
     if args.frames is not None and args.frames < 1:
-        raise SystemExit("--frames must be at least 1")
-    if args.out.exists():
-        raise SystemExit(f"--out {args.out} exists already; give a new directory")
+        raise _refusal("--frames must be at least 1")
+    if args.seed is not None and args.seed < 0:
+        raise _refusal("--seed must be non-negative")
+    for option, path in (("--out", args.out), ("--png-dir", args.png_dir)):
+        if path is not None and path.exists():
+            raise _refusal(f"{option} {path} exists already; give a new directory")
     try:
         scenario = load_scenario(args.scenario)
         result = simulate(scenario, args.out, seed=args.seed, frames=args.frames, video=args.video,
                           png_dir=args.png_dir, compress=args.compress)
-    except (ScenarioError, BackgroundError, FileExistsError) as exc:
-        raise SystemExit(str(exc)) from exc
+    except (ScenarioError, BackgroundError, CameraInfoError, OSError) as exc:
+        raise _refusal(exc) from exc
     print(f"wrote {result.frames} frames to {result.bag_dir.resolve()} in {result.seconds:.1f} s")
     return 0

@@ -4,12 +4,13 @@ Every key has a default; an unknown key, a wrong type or an out-of-range value i
 :class:`ScenarioError` naming the key. Angles are in degrees in the files (DESIGN §3).
 """
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import yaml
 
-from ..config import ConfigError, from_mapping
+from ..config import ConfigError, UniqueKeyLoader, from_mapping
 from ..resources import config_path
 
 
@@ -119,7 +120,7 @@ def load_scenario(name_or_path) -> Scenario:
         except FileNotFoundError as exc:
             raise ScenarioError(f"no shipped scenario named {name_or_path!r}: {exc}") from exc
     try:
-        doc = yaml.safe_load(path.read_text())
+        doc = yaml.load(path.read_text(), UniqueKeyLoader)
     except (OSError, yaml.YAMLError) as exc:
         raise ScenarioError(f"cannot read scenario {path}: {exc}") from exc
     if not isinstance(doc, dict):
@@ -140,6 +141,10 @@ def validate(s: Scenario, where: str = "scenario") -> Scenario:
 
     need((s.approach is None) != (s.single_frame is None), "give exactly one of 'approach' or 'single_frame'")
     need(s.dt_s > 0, "dt_s must be positive")
+    need(s.seed >= 0, f"seed must be non-negative, got {s.seed}")
+    need(0 <= s.start_time_s < 2**31, f"start_time_s must be in [0, 2^31) s (a ROS time stamp), got {s.start_time_s}")
+    need(math.isfinite(s.background.sun_azimuth_deg) and math.isfinite(s.background.sun_elevation_deg),
+         "background.sun_azimuth_deg and sun_elevation_deg must be finite")
     need(s.background.kind in BACKGROUND_KINDS, f"background.kind must be one of {BACKGROUND_KINDS}")
     a = s.approach
     if a is not None:

@@ -1,6 +1,8 @@
 """A whole simulated sequence: scenario → trajectory → frames → rosbag2 (and PNG + CSV)."""
 
+import shutil
 import time
+from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -52,10 +54,28 @@ def sun_direction(scenario: Scenario) -> np.ndarray:
     return np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
 
 
+@contextmanager
+def staged(path: Path):
+    """Yield where to write the new folder ``path``: inside a sibling ``<path>.partial`` folder
+    (replacing one left by a killed run); it becomes ``path`` only if the block succeeds and is
+    deleted otherwise, so that an interrupted or failed run never leaves a complete-looking one."""
+    if path.exists():
+        raise FileExistsError(f"{path} exists already; give a new directory")
+    staging = path.with_name(path.name + ".partial")
+    shutil.rmtree(staging, ignore_errors=True)
+    staging.mkdir(parents=True)
+    try:
+        yield staging / path.name
+        (staging / path.name).rename(path)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+
+
 def simulate(scenario: Scenario, bag_dir, *, seed: int | None = None, frames: int | None = None,
              video: str | None = None, png_dir=None, compress: bool = False, progress: bool = True,
              mesh=None) -> SimulationResult:
-    """Generate the sequence of ``scenario`` (seed overridden by ``seed``) into ``bag_dir``.
+    """Generate the sequence of ``scenario`` (seed overridden by ``seed``) into the new folder
+    ``bag_dir`` (and ``png_dir``); both appear only once complete (:func:`staged`).
 
     ``frames`` keeps the first N frames of the sequence (the approach length is set by the
     seed's start range and speed). Returns the frame count and the wall time.
@@ -85,7 +105,10 @@ def simulate(scenario: Scenario, bag_dir, *, seed: int | None = None, frames: in
         lengths = np.linalg.norm(shifts, axis=1, keepdims=True)
         shifts *= np.minimum(1.0, scenario.imaging.max_blur_px / np.maximum(lengths, 1e-9))
 
-    with SequenceWriter(bag_dir, camera, png_dir=png_dir, compress=compress) as writer:
+    with ExitStack() as stack:
+        bag = stack.enter_context(staged(Path(bag_dir)))
+        png = stack.enter_context(staged(Path(png_dir))) if png_dir else None
+        writer = stack.enter_context(SequenceWriter(bag, camera, png_dir=png, compress=compress))
         for i in tqdm(range(len(traj)), desc=f"simulate {scenario.name}", unit="frame", disable=not progress):
             bg = background.frame(i, traj.times_s[i], traj.cam_rot[i], traj.cam_pos[i])
             light = traj.cam_rot[i].T @ sun

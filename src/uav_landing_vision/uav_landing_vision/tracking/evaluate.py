@@ -99,13 +99,13 @@ class EvaluationResult:
     states: dict  # variant -> (F,) TrackState values
 
 
-def evaluate_bag(bag, variants, *, particles: int = 100, metric: str = "colour", roi_source: str = "detector",
-                 frames: int | None = None, start: int = 0, seed: int = 0, base: TrackerConfig | None = None,
-                 progress: bool = True) -> EvaluationResult:
+def evaluate_bag(bag, variants, *, particles: int | None = None, metric: str | None = None,
+                 roi_source: str = "detector", frames: int | None = None, start: int = 0, seed: int = 0,
+                 base: TrackerConfig | None = None, progress: bool = True) -> EvaluationResult:
     """Run ``variants`` (``CxNy`` names) over the simulated ``bag``; see the module docstring.
     ``start``: frames skipped first (the trackers start fresh there); ``frames``: how many are
-    then tracked (default: the rest). Tracker settings other than variant, N, M, metric and
-    seed come from ``base``."""
+    then tracked (default: the rest). Tracker settings other than variant, N and seed come from
+    ``base`` (default: :class:`TrackerConfig`'s), M and the metric too unless given."""
     from ..boosting import HypothesisConfig, PoseHypothesisGenerator
     from ..evaluation import pose_errors
     from ..model import fixed_wing_mesh
@@ -127,6 +127,8 @@ def evaluate_bag(bag, variants, *, particles: int = 100, metric: str = "colour",
     vertices = fixed_wing_mesh("high").vertices
     maps = raw_camera.undistortion_maps()
     base = TrackerConfig() if base is None else base
+    particles = base.particles if particles is None else particles
+    metric = base.metric if metric is None else metric
     configs = {n: replace(base, variant=c, iterations=k, particles=particles, metric=metric, seed=seed)
                for n, (c, k) in zip(names, map(parse_variant, names))}
     boost = PoseHypothesisGenerator.from_config(replace(

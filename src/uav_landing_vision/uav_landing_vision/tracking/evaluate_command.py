@@ -11,9 +11,9 @@ def register(sub) -> None:
     p.add_argument("--variants", default=DEFAULT_VARIANTS,
                    help="comma-separated CxNy: combination 1-5 of Table 6.11, N PFO iterations "
                         f"(default: {DEFAULT_VARIANTS})")
-    p.add_argument("--particles", type=int, default=100, help="particles M (default: 100)")
-    p.add_argument("--metric", choices=("colour", "contour", "distance_transform"), default="colour",
-                   help="likelihood metric (default: colour)")
+    p.add_argument("--particles", type=int, help="particles M (default: the tracker parameter file's)")
+    p.add_argument("--metric", choices=("colour", "contour", "distance_transform"),
+                   help="likelihood metric (default: the tracker parameter file's)")
     p.add_argument("--roi-source", choices=("detector", "oracle"), default="detector",
                    help="ROIs from the trained detector (default) or from the ground truth (oracle, labelled)")
     p.add_argument("--start", type=int, default=0, help="skip the first S frames (default: 0)")

@@ -1,0 +1,129 @@
+"""User mistakes on the command line: a one-line ``uav-landing <command>: <message>``, no traceback,
+and nothing left behind that looks like a result."""
+
+import dataclasses
+import re
+
+import pytest
+from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+from rosbags.typesys import Stores, get_typestore
+
+from uav_landing_vision.cli import main
+from uav_landing_vision.model import fixed_wing_mesh
+from uav_landing_vision.sim import load_scenario, simulate
+
+_TS = get_typestore(Stores.ROS2_JAZZY)
+
+
+@pytest.fixture(scope="module")
+def bags(tmp_path_factory):
+    """A one-frame simulated bag, the same without its ground truth, and one without messages."""
+    root = tmp_path_factory.mktemp("bags")
+    s = load_scenario("normal")
+    s = dataclasses.replace(s, approach=dataclasses.replace(s.approach, start_range_m=(12.0, 14.0)))
+    simulate(s, root / "full", frames=1, progress=False, mesh=fixed_wing_mesh("low"))
+    for name, dropped, messages in (("no_truth", "/uav/ground_truth", True), ("empty", "", False)):
+        writer = Writer(root / name, version=Writer.VERSION_LATEST, storage_plugin=StoragePlugin.MCAP)
+        writer.open()
+        with Reader(root / "full") as reader:
+            conns = {c.id: writer.add_connection(c.topic, c.msgtype, typestore=_TS)
+                     for c in reader.connections if c.topic != dropped}
+            for conn, stamp, raw in reader.messages() if messages else ():
+                if conn.id in conns:
+                    writer.write(conns[conn.id], stamp, raw)
+        writer.close()
+    return root
+
+
+def _refused(argv, message):
+    with pytest.raises(SystemExit, match=f"^uav-landing {argv[0]}: {message}"):
+        main(argv)
+
+
+def test_simulate_refuses_bad_options_and_camera_files(tmp_path):
+    out = tmp_path / "bag"
+    (tmp_path / "png").mkdir()
+    _refused(["simulate", "--out", str(out), "--frames", "1", "--png-dir", str(tmp_path / "png")],
+             re.escape(f"--png-dir {tmp_path / 'png'} exists already"))
+    _refused(["simulate", "--out", str(out), "--frames", "1", "--seed", "-1"], "--seed must be non-negative")
+    scenario = tmp_path / "scenario.yaml"
+    scenario.write_text(f"approach: {{}}\ncamera_info: {tmp_path / 'nosuch.yaml'}\n")
+    _refused(["simulate", "--scenario", str(scenario), "--out", str(out), "--frames", "1"],
+             "config file '.*nosuch.yaml' not found")
+    (tmp_path / "bad_camera.yaml").write_text("image_width: abc\n")
+    scenario.write_text(f"approach: {{}}\ncamera_info: {tmp_path / 'bad_camera.yaml'}\n")
+    _refused(["simulate", "--scenario", str(scenario), "--out", str(out), "--frames", "1"],
+             ".*bad_camera.yaml: 'camera_matrix' must be a mapping")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad_camera.yaml", "png", "scenario.yaml"]
+
+
+def test_boosting_commands_refuse_missing_and_degenerate_inputs(tmp_path):
+    out = str(tmp_path / "db.npz")
+    _refused(["build-database", "--out", out, "--count", "2", "--camera", str(tmp_path / "nosuch.yaml")],
+             "cannot read camera calibration")
+    (tmp_path / "line.obj").write_text("v -0.5 0 0\nv 0.5 0 0\nv 1.0 0 0\nf 1 2 3\n")
+    _refused(["build-database", "--out", out, "--count", "2", "--model", str(tmp_path / "line.obj")], ".*no surface")
+    _refused(["build-database", "--out", out, "--count", "0"], "database count must be positive")
+    _refused(["eval-boosting", "--database", str(tmp_path / "nosuch.npz"), "--samples", "1", "--distances", "5",
+              "--top", "1"], "pose database .*nosuch.npz not found")
+    assert not list(tmp_path.glob("*.npz"))
+
+
+def test_eval_detector_refuses_unusable_bags_and_models(tmp_path, bags):
+    def refused(bag, message, *extra):
+        _refused(["eval-detector", "--bag", str(bag), "--json", str(tmp_path / "m.json"), *extra], message)
+
+    refused(tmp_path / "missing", "cannot read /camera/camera_info of bag .*missing")
+    refused(bags / "no_truth", ".*no_truth: no topic /uav/ground_truth")
+    refused(bags / "empty", ".*empty: no message on /camera/camera_info")
+    refused(bags / "full", "models file 'nosuch.onnx' not found", "--model", "nosuch.onnx")
+
+
+def test_score_refuses_an_empty_truth(tmp_path, bags):
+    (tmp_path / "est.csv").write_text("stamp_ns,x,y,z,qx,qy,qz,qw\n1,0,0,5,0,0,0,1\n")
+    _refused(["score", "--truth", str(bags / "empty"), "--estimate", str(tmp_path / "est.csv"),
+              "--json", str(tmp_path / "s.json")], ".*empty holds no ground-truth pose")
+    assert not (tmp_path / "s.json").exists()
+
+
+def test_make_detection_data_refuses_a_missing_camera(tmp_path):
+    _refused(["make-detection-data", "--out", str(tmp_path / "data"), "--count", "1", "--camera", "nosuch.yaml"],
+             "config file 'nosuch.yaml' not found")
+    assert not (tmp_path / "data").exists()
+
+
+def test_train_verifier_fails_at_once_without_its_detector(tmp_path, monkeypatch):
+    """The detector is loaded before the mining pool starts (whose failing workers would be
+    restarted for ever)."""
+    import multiprocessing
+
+    def no_pool(*args):
+        raise AssertionError("the mining pool was started")
+
+    monkeypatch.setattr(multiprocessing, "get_context", no_pool)
+    (tmp_path / "data").mkdir()
+    (tmp_path / "data" / "dataset.json").write_text('{"images": 1}')
+    _refused(["train-verifier", "--data", str(tmp_path / "data"), "--detector", "nosuch.onnx", "--out",
+              str(tmp_path / "run")], "models file 'nosuch.onnx' not found")
+
+
+def test_unreported_input_errors_are_one_line_and_programming_errors_are_not_hidden(tmp_path, monkeypatch, capsys):
+    import importlib
+
+    score = importlib.import_module("uav_landing_vision.evaluation.score")
+    for path in ("truth", "est.csv"):
+        (tmp_path / path).touch()
+    argv = ["score", "--truth", str(tmp_path / "truth"), "--estimate", str(tmp_path / "est.csv"),
+            "--json", str(tmp_path / "s.json")]
+
+    def raising(error):
+        def score_files(*args):
+            raise error
+        return score_files
+
+    monkeypatch.setattr(score, "score_files", raising(OSError("disk unreadable")))
+    assert main(argv) == 2
+    assert capsys.readouterr().err == "uav-landing score: disk unreadable\n"
+    monkeypatch.setattr(score, "score_files", raising(TypeError("a bug")))
+    with pytest.raises(TypeError, match="a bug"):
+        main(argv)
