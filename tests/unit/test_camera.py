@@ -111,6 +111,7 @@ def test_camera_info_fields_round_trip(camera):
             "1..16384 px a side",
         ),
         ("image_width: [1\n", "cannot read"),
+        ("image_width: 1280\nimage_width: 640\n", "duplicate key 'image_width'"),
     ],
 )
 def test_bad_yaml_is_a_clear_error(tmp_path, text, message):

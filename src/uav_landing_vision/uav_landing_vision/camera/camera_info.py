@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from ..config import UniqueKeyLoader
 from .model import DEFAULT_FRAME_ID, CameraModel
 
 SUPPORTED_DISTORTION = "plumb_bob"
@@ -37,7 +38,7 @@ def load_camera_info_yaml(path, frame_id: str = DEFAULT_FRAME_ID) -> CameraModel
     """Read a ROS camera_info YAML file; raise :class:`CameraInfoError` on anything malformed."""
     path = Path(path)
     try:
-        doc = yaml.safe_load(path.read_text())
+        doc = yaml.load(path.read_text(), UniqueKeyLoader)
     except (OSError, yaml.YAMLError) as exc:
         raise CameraInfoError(f"cannot read camera calibration {path}: {exc}") from exc
     if not isinstance(doc, dict):
