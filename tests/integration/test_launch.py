@@ -3,6 +3,8 @@ console scripts, parameter files installed to share/, and the same node list as 
 
 import ast
 import py_compile
+import subprocess
+import sys
 from glob import glob
 from pathlib import Path
 
@@ -43,11 +45,16 @@ def test_launch_and_graph_start_the_same_nodes_each_with_script_module_and_param
         assert (PACKAGE_DIR / "uav_landing_vision" / "nodes" / f"{name}.py").is_file()
 
 
-def test_setup_installs_the_launch_file_and_every_parameter_file(monkeypatch):
-    monkeypatch.chdir(PACKAGE_DIR)  # colcon runs setup.py from the package folder
-    source = (PACKAGE_DIR / "setup.py").read_text()
-    assert '("share/" + package_name + "/launch", glob("launch/*.py"))' in source
-    assert '("share/" + package_name + "/config", glob("../../config/*.yaml"))' in source
-    assert "launch/landing_vision.launch.py" in glob("launch/*.py")
-    installed = {Path(p).name for p in glob("../../config/*.yaml")}
-    assert {f"{name}.yaml" for name in GRAPH_NODES} <= installed
+def test_setup_installs_the_launch_file_parameter_files_models_and_shaders(tmp_path):
+    """What a plain (non-symlink) ``colcon build`` installs: setup.py's build_py and install_data,
+    run from the package folder as colcon does."""
+    subprocess.run([sys.executable, "setup.py", "-q", "build_py", "-d", str(tmp_path / "lib"),
+                    "install_data", "-d", str(tmp_path / "data")],
+                   cwd=PACKAGE_DIR, check=True, capture_output=True)
+    share = tmp_path / "data" / "share" / "uav_landing_vision"
+    assert (share / "launch" / "landing_vision.launch.py").is_file()
+    installed = {p.name for p in (share / "config").glob("*.yaml")}
+    assert {f"{name}.yaml" for name in GRAPH_NODES} | {"camera.yaml"} <= installed
+    assert {p.name for p in (PACKAGE_DIR / "models").iterdir()} <= {p.name for p in (share / "models").iterdir()}
+    shaders = {p.name for p in (PACKAGE_DIR / "uav_landing_vision" / "render" / "shaders").iterdir()}
+    assert shaders and shaders == {p.name for p in (tmp_path / "lib" / "uav_landing_vision" / "render" / "shaders").iterdir()}

@@ -14,6 +14,7 @@ from uav_landing_vision.detection.detector import (
     letterbox,
     nms,
     search_window,
+    select_boxes,
 )
 
 
@@ -80,6 +81,30 @@ def test_search_window_centred_and_kept_inside():
     assert search_window((600, 300, 20, 10), 1280, 720, 3.0, 192) == (514, 209, 192, 192)
     assert search_window((1270, 700, 10, 10), 1280, 720, 3.0, 192) == (1088, 528, 192, 192)
     assert search_window((0, 0, 400, 300), 1280, 720, 3.0, 192) == (0, 0, 1200, 720)
+
+
+def test_a_rejected_box_suppresses_nothing():
+    boxes = np.array([[0, 0, 10, 10], [1, 1, 11, 11], [50, 50, 60, 60], [2, 0, 12, 10]], np.float32)
+    scores = np.array([0.9, 0.8, 0.7, 0.6], np.float32)
+    np.testing.assert_array_equal(select_boxes(boxes, scores, 0.45, 10), [0, 2])  # plain NMS
+    asked = []
+
+    def not_the_first(b):  # box 0 is a wave crest; it had hidden box 1
+        asked.extend(map(tuple, b))
+        return ~np.all(b == boxes[0], axis=1)
+
+    np.testing.assert_array_equal(select_boxes(boxes, scores, 0.45, 10, not_the_first), [1, 2])
+    assert len(asked) == len(set(asked)) == 3  # each box is put to the verifier once; box 3 stays hidden
+    np.testing.assert_array_equal(select_boxes(boxes, scores, 0.45, 1, not_the_first), [1])
+    assert not len(select_boxes(boxes, scores, 0.45, 10, lambda b: np.zeros(len(b), bool)))
+    # a flood of rejected candidates: at most 4 × limit checked, in batches of at most limit
+    rng = np.random.default_rng(0)
+    xy = rng.uniform(0, 1000, (500, 2))
+    many = np.hstack([xy, xy + 8]).astype(np.float32)
+    calls = []
+    none = lambda b: calls.append(len(b)) or np.zeros(len(b), bool)  # noqa: E731
+    assert not len(select_boxes(many, rng.uniform(size=500).astype(np.float32), 0.45, 5, none))
+    assert sum(calls) == 20 and max(calls) <= 5
 
 
 def test_window_grows_to_whole_cells_from_the_frame():

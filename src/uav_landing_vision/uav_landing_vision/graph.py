@@ -56,7 +56,7 @@ def ready_topics_parameter(topics=PIPELINE_TOPICS) -> str:
 def register(sub) -> None:
     p = sub.add_parser("graph", help="run the node graph, one process per node (what ros2 launch would do)")
     p.add_argument("--bag", type=Path, help="rosbag2 bag to replay with bag_player; without it, no bag_player (live camera)")
-    p.add_argument("--config", type=Path, default=Path("config"), help="folder of the <node>.yaml parameter files (default: config)")
+    p.add_argument("--config", type=Path, help="folder of the <node>.yaml parameter files (default: the package's config/)")
     p.add_argument("--nodes", help=f"comma-separated subset of {','.join(GRAPH_NODES)} (default: all)")
     p.add_argument(
         "--param", action="append", default=[], metavar="NODE:KEY=VALUE",
@@ -78,6 +78,10 @@ def node_command(name: str, config_dir: Path, overrides=()) -> list[str]:
 
 
 def _run(args) -> int:
+    if args.config is None:
+        from .resources import config_path
+
+        args.config = config_path("tracker.yaml").parent
     try:
         names, overrides = _plan(args)
     except ValueError as exc:

@@ -157,6 +157,28 @@ def nms(boxes: np.ndarray, scores: np.ndarray, iou: float, limit: int | None = N
     return np.array(keep, dtype=np.int64)
 
 
+def select_boxes(boxes: np.ndarray, scores: np.ndarray, iou: float, limit: int, accept=None) -> np.ndarray:
+    """Indices of the boxes kept by NMS (at most ``limit``, best first) among those ``accept``
+    (a function of an ``(N,4)`` array → ``(N,)`` bool, e.g. the box verifier) does not reject.
+    A rejected box suppresses nothing: NMS is run again without it. Each box is put to
+    ``accept`` once, and at most ``4·limit`` boxes in all (a frame full of rejected candidates
+    costs a few batched calls, not one per candidate); boxes left unchecked then are dropped."""
+    rejected = np.zeros(len(boxes), bool)
+    checked = np.zeros(len(boxes), bool)
+    while True:
+        candidates = np.flatnonzero(~rejected)
+        keep = candidates[nms(boxes[candidates], scores[candidates], iou, limit)]
+        new = keep[~checked[keep]]
+        if accept is None or not len(new):
+            return keep
+        room = 4 * limit - int(checked.sum())
+        if room <= 0:
+            return keep[checked[keep]]
+        new = new[:room]
+        checked[new] = True
+        rejected[new[~np.asarray(accept(boxes[new]), bool)]] = True
+
+
 def grow_to_multiple(window, width: int, height: int, multiple: int) -> tuple[int, int, int, int]:
     """``window`` ``(x, y, w, h)`` grown about its centre to the next multiple of ``multiple`` a
     side, as far as the image allows, so that the network runs on image pixels, not padding."""
@@ -231,14 +253,16 @@ class Detector:
             ox, oy, ww, wh = grow_to_multiple(window, width, height, max(self.strides))
             boxes, scores = self._infer(image[oy : oy + wh, ox : ox + ww], 1.0, cv2.BORDER_REPLICATE)
             boxes += np.array([ox, oy, ox, oy], np.float32)
-        if self.verifier is not None and len(boxes):  # on the whole frame: the context it was trained on
-            kept = self.verifier.probabilities(image, boxes) >= self.config.verifier_threshold
-            boxes, scores = boxes[kept], scores[kept]
-        return Detections(boxes, scores)
+        cfg = self.config
+        accept = None
+        if self.verifier is not None:  # on the whole frame: the context it was trained on
+            accept = lambda b: self.verifier.probabilities(image, b) >= cfg.verifier_threshold  # noqa: E731
+        keep = select_boxes(boxes, scores, cfg.nms_iou, cfg.max_detections, accept)
+        return Detections(boxes[keep], scores[keep])
 
     def _infer(self, image: np.ndarray, max_scale: float, border: int) -> tuple[np.ndarray, np.ndarray]:
-        """Boxes (in ``image``'s pixels, clipped to it; none wholly in the padding) and scores
-        after NMS, best first."""
+        """The decoded boxes above the score threshold (in ``image``'s pixels, clipped to it;
+        none wholly in the padding) and their scores, before NMS."""
         cfg = self.config
         padded, lb = letterbox(image, self.input_size, max(self.strides), max_scale, border)
         blob = np.ascontiguousarray(padded.transpose(2, 0, 1)[None], np.float32) * np.float32(1 / 255)
@@ -249,6 +273,4 @@ class Detector:
                         np.array([width, height, width, height], np.float32))
         scores = np.concatenate([p[1] for p in parts])
         inside = (boxes[:, 2] > boxes[:, 0]) & (boxes[:, 3] > boxes[:, 1])
-        boxes, scores = boxes[inside], scores[inside]
-        keep = nms(boxes, scores, cfg.nms_iou, cfg.max_detections)
-        return boxes[keep], scores[keep]
+        return boxes[inside], scores[inside]
