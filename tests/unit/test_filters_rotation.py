@@ -183,3 +183,16 @@ def test_ubif_learns_a_constant_angular_velocity_from_its_estimates():
         state = filt.update(filt.predict(state), truth.as_quat())
     np.testing.assert_allclose(filt.estimate(state)[1], omega, atol=0.05)
     assert np.trace(state.omega_cov[0]) < 0.5 * spread0
+
+
+def test_ubigaf_update_after_a_prior_wide_about_one_axis_has_no_negative_variance():
+    # A prior much wider about one axis than the measurement noise (as after a symmetric-pose
+    # confusion): the composition difference of the update's step 4 is then indefinite.
+    from uav_landing_vision.filters.ubigaf import UBiGaF
+
+    f = UBiGaF(0.034, (-250.0,) * 3, (-800.0,) * 3, np.full(3, 0.25))
+    s = f.init(np.array([[0.0, 0.0, 0.0, 1.0]]), np.zeros((1, 3)), (-800.0,) * 3, np.full(3, 4.0))
+    s = dataclasses.replace(s, p_q=bingham.covariance(np.eye(4), np.array([-1e5, -1e5, -0.5]))[None])
+    after = f.update(s, np.array([[0.0, 0.0, np.sin(0.3), np.cos(0.3)]]))
+    assert np.linalg.eigvalsh(f.covariance(after)[0]).min() >= -1e-12
+    assert np.linalg.eigvalsh(after.p_q[0]).min() >= -1e-12

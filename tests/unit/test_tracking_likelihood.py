@@ -318,3 +318,21 @@ def test_band_zero_is_the_thesis_metric_and_band_mixes_both(renderer, frame):
     np.testing.assert_allclose(banded.score_batch(batch), 0.5 * (core + full), atol=1e-12)
     with pytest.raises(ValueError, match="band_px"):
         ColourConfig(band_px=-1.0)
+
+
+def test_outline_band_of_large_tiles_does_not_reach_the_next_tile():
+    t = 128
+    a = np.zeros((t, t), np.uint8)
+    a[60:, 10:120] = 1  # touches the bottom of its tile
+    b = np.zeros((t, t), np.uint8)
+    b[40:, :] = 1
+    boxes = np.array([[0.0, 0.0, t, t]] * 2)
+    for band in (1.5, 20.0, 25.0):
+        both = outline_band(np.array([a, b]), boxes, band)
+        np.testing.assert_array_equal(both[0], outline_band(a[None], boxes[:1], band)[0])
+        np.testing.assert_array_equal(both[1], outline_band(b[None], boxes[:1], band)[0])
+
+
+def test_one_colour_bin_is_refused():
+    with pytest.raises(ValueError, match="2..85"):
+        ColourConfig(bins_per_channel=1)

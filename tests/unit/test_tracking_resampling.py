@@ -180,3 +180,13 @@ def test_fixed_size_restores_the_particle_number(name, weights):
         assert len(idx) == M and np.all(np.diff(idx) >= 0)
         if len(res.indices) >= M:  # only dropping: a sub-multiset of the scheme's copies
             assert np.all(np.bincount(idx, minlength=M) <= np.bincount(res.indices, minlength=M))
+
+
+def test_weights_whose_sum_overflows_still_resample():
+    idx = resample("systematic", np.full(3, 1e308), np.random.default_rng(0)).indices
+    np.testing.assert_array_equal(idx, [0, 1, 2])
+
+
+def test_metropolis_never_keeps_a_zero_weight_particle():
+    w = np.eye(100)[37]  # one particle holds all the weight: no chain may stay on another
+    np.testing.assert_array_equal(resample("metropolis", w, np.random.default_rng(0)).indices, np.full(100, 37))

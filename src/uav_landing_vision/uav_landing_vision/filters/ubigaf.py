@@ -153,7 +153,8 @@ class UBiGaF:
         r_sig = np.concatenate([d, sig_w], axis=-1)
         r_mean, p_rr = unscented_moments(r_sig, weights, weights)
         # Step 4: Cov(ν ⊗ Λ) (C.7) is P_zz plus the spread the composition with Λ adds.
-        noise = bingham.tangent_covariance(s.q, bingham.compose_covariance(s.p_q, self.measurement_cov) - s.p_q)
+        noise = _without_negative_variance(
+            bingham.tangent_covariance(s.q, bingham.compose_covariance(s.p_q, self.measurement_cov) - s.p_q))
         z = tangent_coordinates(s.q, np.asarray(meas, float))
         r, p_r, nu, p_nn = kalman_update(r_sig, r_mean, p_rr, d, z, noise, weights, weights)  # steps 1–7
         r, p_r = outliers.gaussian_update(self.outlier_prob, nu, p_nn, r, p_r, r_mean, p_rr)
@@ -187,3 +188,19 @@ class UBiGaF:
     def covariance(s: UBiGaFState) -> np.ndarray:
         """Rotation-error covariance ``(M, 3, 3)`` about the mode, rad²."""
         return bingham.tangent_covariance(s.q, s.p_q)
+
+
+def _without_negative_variance(cov: np.ndarray) -> np.ndarray:
+    """``(..., 3, 3)`` covariances with negative eigenvalues set to zero, the others untouched.
+
+    The composition difference of step 4 is not positive semi-definite for every prior: with a
+    prior much wider about one axis than the measurement noise it has a negative eigenvalue,
+    and the update would then report a negative variance."""
+    values, vectors = np.linalg.eigh(cov)
+    bad = values.min(axis=-1) < 0.0
+    if not np.any(bad):
+        return cov
+    out = np.array(cov, float, copy=True)
+    v = vectors[bad]
+    out[bad] = v @ (np.maximum(values[bad], 0.0)[..., None] * np.swapaxes(v, -1, -2))
+    return out

@@ -21,8 +21,8 @@ class ColourConfig:
 
     def __post_init__(self):
         b = self.bins_per_channel
-        if not (isinstance(b, int) and 1 <= b <= 85 and 256 % b == 0):
-            raise ValueError(f"bins_per_channel must divide 256 and be at most 85, got {b!r}")
+        if not (isinstance(b, int) and 2 <= b <= 85 and 256 % b == 0):
+            raise ValueError(f"bins_per_channel must divide 256 and be 2..85, got {b!r}")
         if not self.band_px >= 0.0:
             raise ValueError(f"band_px must be non-negative, got {self.band_px!r}")
 
@@ -64,7 +64,7 @@ def outline_band(masks: np.ndarray, boxes: np.ndarray, band_px: float) -> np.nda
     silhouettes keep their core.
     """
     v, t, _ = masks.shape
-    pad = 8  # zero border: no distance within the band reaches into the next tile
+    pad = max(8, t // 8 + 2)  # zero border wider than half the widest band: no tile reaches the next
     padded = np.zeros((v, t + 2 * pad, t + 2 * pad), np.uint8)
     padded[:, pad:-pad, pad:-pad] = masks
     stacked = padded.reshape(v * (t + 2 * pad), t + 2 * pad)

@@ -28,6 +28,9 @@ def _normalise(weights) -> np.ndarray:
     if not np.all(np.isfinite(w)) or np.any(w < 0.0):
         raise ValueError("resampling: weights must be finite and non-negative")
     total = w.sum()
+    if not np.isfinite(total):  # each weight finite, their sum beyond float range
+        w = w / w.max()
+        total = w.sum()
     if not total > 0.0:
         raise ValueError("resampling: weights sum to zero")
     return w / total
@@ -155,8 +158,8 @@ def reallocation(weights, rng: np.random.Generator) -> Resampled:
 
     A particle with ``w_m ≥ ℵ`` gets ``⌊M w_m⌋`` copies of weight ``w_m / ⌊M w_m⌋``; a particle
     below ``ℵ`` survives once with probability ``M w_m`` and then carries ``ℵ``. The number of
-    copies ``M_out`` is random (at most ``M``); weights are returned unnormalised (their sum is
-    1 in expectation).
+    copies ``M_out`` is random and can exceed ``M`` (:func:`fixed_size` trims it); weights are
+    returned unnormalised (their sum is 1 in expectation).
     """
     w = _normalise(weights)
     m = len(w)
@@ -178,9 +181,11 @@ def metropolis(weights, rng: np.random.Generator, steps: int = 32) -> Resampled:
         raise ValueError("metropolis resampling: steps must be at least 1")
     m = len(w)
     k = np.arange(m)
+    positive = np.flatnonzero(w > 0.0)
+    k = np.where(w > 0.0, k, positive[k % len(positive)])  # no chain starts on a zero weight
     for _ in range(steps):
         j = rng.integers(0, m, size=m)
-        accept = rng.random(m) * w[k] <= w[j]
+        accept = (rng.random(m) * w[k] <= w[j]) & (w[j] > 0.0)  # a zero-weight particle is never taken
         k = np.where(accept, j, k)
     return _uniform(k)
 
