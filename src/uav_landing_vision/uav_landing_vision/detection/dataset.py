@@ -121,14 +121,13 @@ def projected_outline(vertices: np.ndarray, K: np.ndarray, quat, trans, width: i
     return clipped.reshape(-1, 2).astype(np.float64)
 
 
-def _corners_roi(corners: np.ndarray, width: int, height: int) -> np.ndarray | None:
-    """Axis-aligned ROI ``[x0,y0,x1,y1]`` (pixel edges) of pixel-centre corner points, clipped."""
+def _corner_rois(corners: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """Axis-aligned ROIs ``(..., 4)`` ``[x0,y0,x1,y1]`` (pixel edges) of pixel-centre corner
+    points ``(..., K, 2)``, clipped to the image, and whether each is non-empty."""
     corners = np.asarray(corners, float) + 0.5
-    x0, y0 = np.maximum(corners.min(axis=0), 0.0)
-    x1, y1 = np.minimum(corners.max(axis=0), (width, height))
-    if x1 <= x0 or y1 <= y0:
-        return None
-    return np.array([x0, y0, x1, y1], dtype=np.float64)
+    lo = np.maximum(corners.min(axis=-2), 0.0)
+    hi = np.minimum(corners.max(axis=-2), (width, height))
+    return np.concatenate([lo, hi], axis=-1), np.all(hi > lo, axis=-1)
 
 
 def outline_roi(outline: np.ndarray | None, width: int, height: int, oriented: bool = True) -> np.ndarray | None:
@@ -143,8 +142,9 @@ def outline_roi(outline: np.ndarray | None, width: int, height: int, oriented: b
     """
     if outline is None:
         return None
-    return _corners_roi(cv2.boxPoints(cv2.minAreaRect(outline.astype(np.float32))) if oriented else outline,
-                        width, height)
+    corners = cv2.boxPoints(cv2.minAreaRect(outline.astype(np.float32))) if oriented else outline
+    roi, non_empty = _corner_rois(corners, width, height)
+    return roi if non_empty else None
 
 
 def model_roi(vertices: np.ndarray, K: np.ndarray, quat, trans, width: int, height: int,
@@ -177,10 +177,7 @@ def oriented_box_tie(outline: np.ndarray, width: int, height: int,
     area = (hi_u - lo_u) * (hi_v - lo_v)
     corner_u = np.stack([lo_u, hi_u, hi_u, lo_u], axis=1)[..., None]
     corner_v = np.stack([lo_v, lo_v, hi_v, hi_v], axis=1)[..., None]
-    corners = corner_u * axis_u[:, None] + corner_v * axis_v[:, None] + 0.5   # (E, 4, 2) pixel edges
-    rois = np.concatenate([np.maximum(corners.min(axis=1), 0.0),
-                           np.minimum(corners.max(axis=1), (width, height))], axis=1)
-    valid = (rois[:, 2] > rois[:, 0]) & (rois[:, 3] > rois[:, 1])
+    rois, valid = _corner_rois(corner_u * axis_u[:, None] + corner_v * axis_v[:, None], width, height)  # (E, 4)
     distinct = valid & (box_iou(rois, label[None])[:, 0] < distinct_iou)
     if not distinct.any():
         return np.inf, None
