@@ -78,8 +78,9 @@ class StageMachine:
 
     LOITER → APPROACH when a pose is tracked; APPROACH → LAND inside the cone; LAND →
     NO_RETURN within ``no_return_distance_m``, inside the cone; LAND → GO_AROUND on track loss
-    or outside the cone (a pose outside it never commits the landing); GO_AROUND → LOITER after ``go_around_hold_s``. A loss during APPROACH returns to
-    LOITER (the UAV has not started its descent). NO_RETURN holds until ``reset()``.
+    or outside the cone (a pose outside it never commits the landing); GO_AROUND → LOITER after
+    ``go_around_hold_s``. A loss during APPROACH returns to LOITER (the UAV has not started its
+    descent). NO_RETURN holds until ``reset()``.
     """
 
     def __init__(self, cone: ConeConfig, go_around_hold_s: float):

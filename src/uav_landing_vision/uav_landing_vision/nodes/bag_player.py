@@ -3,8 +3,9 @@
 Stands in for ``ros2 bag play`` where rosbag2 is not installed; reads with ``rosbags``. Every
 message is checked by deserialising it with the installed message type, then its recorded
 bytes are published unchanged. Images and camera_info go out with the graph's image QoS
-(reliable, keep last 5), other topics reliable, keep last 10 (``qos.qos_for_type``). Messages sharing a bag timestamp are published with
-the ``pace_topic`` message last, so a frame's camera_info precedes its image.
+(reliable, keep last 5), other topics reliable, keep last 10 (``qos.qos_for_type``). Messages
+sharing a bag timestamp are published with the ``pace_topic`` message last, so a frame's
+camera_info precedes its image.
 
 Modes (parameter ``mode``):
 
