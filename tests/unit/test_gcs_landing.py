@@ -280,6 +280,55 @@ def test_a_pose_outside_the_cone_never_commits_the_landing(bridge):
     assert bridge.tick(4.62).guidance.stage == Stage.GO_AROUND
 
 
+def test_a_lone_outlier_within_no_return_range_does_not_commit_the_landing(bridge):
+    fly(bridge, approach(), t_end=(120.0 - 20.0) / 20.0)  # LAND at 20 m
+    assert bridge.stage == Stage.LAND
+    # one pose 8 m from the net, on the glide slope: inside the cone, 12 m nearer within 33 ms
+    assert feed(bridge, 5.0 + 1 / 30, on_axis(8.0))
+    assert bridge.tick(5.06).guidance.stage == Stage.LAND
+    # the track goes on from 19.3 m and commits once it is itself within 10 m
+    results = fly_from(bridge, 5.0 + 2 / 30, t_end=5.9)
+    assert stages(results) == [Stage.LAND, Stage.NO_RETURN]
+    assert 10.0 - 20.0 * 0.1 <= range_at(first_tick(results, Stage.NO_RETURN)) <= 10.0
+
+
+def fly_from(bridge, t0, t_end, frame_dt=1 / 30, ticks_every=3, latency=0.03):
+    """:func:`fly`'s straight-in approach from time ``t0`` on."""
+    out = []
+    for k in range(int(round((t_end - t0) / frame_dt)) + 1):
+        t = t0 + k * frame_dt
+        feed(bridge, t, on_axis(range_at(t)))
+        if k % ticks_every == 0:
+            out.append((t, bridge.tick(t + latency)))
+    return out
+
+
+def test_no_return_needs_successive_plausible_poses_with_distinct_stamps():
+    machine = StageMachine(CONE, go_around_hold_s=1.0)
+    at = lambda rng: cone_geometry(on_axis(rng), CONE)  # noqa: E731
+    for k, rng in enumerate([30.0, 29.0, 28.0]):  # APPROACH, then LAND
+        machine.update(0.1 * k, at(rng), 0.1 * k)
+    assert machine.stage == Stage.LAND
+    # two poses jump to 9 m and 8.5 m: the first breaks the run (19 m in 0.1 s), so 2 < 3 poses
+    assert machine.update(0.3, at(9.0), 0.3) == Stage.LAND
+    assert machine.update(0.4, at(8.5), 0.4) == Stage.LAND
+    assert machine.update(0.5, at(8.5), 0.4) == Stage.LAND  # the same pose ticked again
+    assert machine.update(0.6, at(8.0), 0.5) == Stage.NO_RETURN  # a third consistent pose
+
+
+def test_an_outlier_commits_at_most_the_range_rate_bound_early():
+    machine = StageMachine(CONE, go_around_hold_s=1.0)
+    at = lambda rng: cone_geometry(on_axis(rng), CONE)  # noqa: E731
+    for k, rng in enumerate([16.0, 15.0, 14.0]):
+        machine.update(0.1 * k, at(rng), 0.1 * k)
+    assert machine.stage == Stage.LAND
+    step = CONE.max_range_rate_mps * 0.1  # 4 m in 0.1 s
+    assert machine.update(0.3, at(14.0 - step - 0.01), 0.3) == Stage.LAND  # beyond the bound: run restarts
+    machine.update(0.4, at(13.0), 0.4)
+    machine.update(0.5, at(12.0), 0.5)
+    assert machine.update(0.6, at(12.0 - step + 0.01), 0.6) == Stage.NO_RETURN  # within it: commits
+
+
 def test_values_mavlink_cannot_carry_are_refused(bridge):
     bridge.on_tracker_state(TRACKER_TRACKING)
     p_cam, q_cam = camera_pose(on_axis(40.0))
@@ -310,9 +359,9 @@ def test_bad_pose_is_rejected_and_nothing_is_sent(bridge):
 
 def test_stage_machine_needs_a_track_to_leave_loiter():
     machine = StageMachine(CONE, go_around_hold_s=1.0)
-    assert machine.update(0.0, None) == Stage.LOITER
-    assert machine.update(0.1, cone_geometry(on_axis(40.0), CONE)) == Stage.APPROACH
-    assert machine.update(0.2, None) == Stage.LOITER  # lost before the descent: loiter again
+    assert machine.update(0.0, None, -math.inf) == Stage.LOITER
+    assert machine.update(0.1, cone_geometry(on_axis(40.0), CONE), 0.05) == Stage.APPROACH
+    assert machine.update(0.2, None, 0.05) == Stage.LOITER  # lost before the descent: loiter again
 
 
 def test_dataclass_config_is_what_the_bridge_uses():

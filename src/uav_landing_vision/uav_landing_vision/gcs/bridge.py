@@ -104,7 +104,7 @@ class GcsBridge:
         )
         geometry = cone_geometry(self._pose.position, self._cfg.cone) if fresh else None
         before = self._machine.stage
-        stage = self._machine.update(now_s, geometry)
+        stage = self._machine.update(now_s, geometry, self._stamp)
         sent: list[str] = []
         if now_s - self._last_heartbeat >= HEARTBEAT_PERIOD_S:
             self._sender.send_heartbeat()

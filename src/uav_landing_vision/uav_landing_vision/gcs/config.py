@@ -39,6 +39,8 @@ class ConeConfig:
     beta2_deg: float  # full horizontal opening: inside when |lateral angle| <= beta2 / 2
     distance_m: float  # d: the cone is flown within this range of the landing point
     no_return_distance_m: float  # NO_RETURN below this range
+    no_return_confirm_poses: int  # NO_RETURN needs this many successive in-cone poses, the last within range
+    max_range_rate_mps: float  # a range change faster than this between successive poses breaks that run
     approach_course_deg: float  # course of the landing UAV in the ship frame (0 = toward the bow)
 
     def __post_init__(self):
@@ -48,6 +50,10 @@ class ConeConfig:
             raise ValueError("cone.beta2_deg must be in (0, 180)")
         if not 0.0 < self.no_return_distance_m < self.distance_m:
             raise ValueError("cone: need 0 < no_return_distance_m < distance_m")
+        if self.no_return_confirm_poses < 2:
+            raise ValueError("cone.no_return_confirm_poses must be an integer >= 2")
+        if not 0.0 < self.max_range_rate_mps < math.inf:
+            raise ValueError("cone.max_range_rate_mps must be > 0 and finite")
         if not math.isfinite(self.approach_course_deg):
             raise ValueError("cone.approach_course_deg must be finite")
 

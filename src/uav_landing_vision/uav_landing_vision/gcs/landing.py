@@ -77,24 +77,46 @@ class StageMachine:
     """The trajectory state machine of Fig. 1.4 (right).
 
     LOITER → APPROACH when a pose is tracked; APPROACH → LAND inside the cone; LAND →
-    NO_RETURN within ``no_return_distance_m``, inside the cone; LAND → GO_AROUND on track loss
-    or outside the cone (a pose outside it never commits the landing); GO_AROUND → LOITER after
+    NO_RETURN within ``no_return_distance_m``, once the last ``no_return_confirm_poses`` poses
+    (distinct stamps, as ticked) were all inside the cone and none changed the range faster than
+    ``max_range_rate_mps`` since the one before; LAND → GO_AROUND on track loss or outside the
+    cone (a pose outside it never commits the landing); GO_AROUND → LOITER after
     ``go_around_hold_s``. A loss during APPROACH returns to LOITER (the UAV has not started its
     descent). NO_RETURN holds until ``reset()``.
+
+    So a lone outlier can commit the landing at most ``max_range_rate_mps`` × (its stamp − the
+    previous pose's) metres early; one that jumps further restarts the count.
     """
 
     def __init__(self, cone: ConeConfig, go_around_hold_s: float):
         self._cone = cone
         self._hold = go_around_hold_s
         self._go_around_since = 0.0
+        self._run: list[tuple[float, float]] = []  # (stamp, range) of the successive plausible in-cone poses
         self.stage = Stage.LOITER
 
     def reset(self) -> None:
         """Back to LOITER, e.g. after the UAV is recovered from the net."""
         self.stage = Stage.LOITER
+        self._run = []
 
-    def update(self, now_s: float, geometry: ConeGeometry | None) -> Stage:
-        """Advance by at most one transition; ``geometry`` is None when there is no fresh track."""
+    def _follow(self, stamp_s: float, geometry: ConeGeometry | None) -> None:
+        """Extend, restart or end the run of plausible in-cone poses with this tick's pose."""
+        if geometry is None or not geometry.inside_cone:
+            self._run = []
+            return
+        if self._run:
+            last_stamp, last_range = self._run[-1]
+            if stamp_s <= last_stamp:  # the same pose ticked again: no new evidence
+                return
+            if abs(geometry.range - last_range) > self._cone.max_range_rate_mps * (stamp_s - last_stamp):
+                self._run = []
+        self._run = [*self._run[-(self._cone.no_return_confirm_poses - 1):], (stamp_s, geometry.range)]
+
+    def update(self, now_s: float, geometry: ConeGeometry | None, stamp_s: float) -> Stage:
+        """Advance by at most one transition; ``geometry`` (of the pose stamped ``stamp_s``) is
+        None when there is no fresh track."""
+        self._follow(stamp_s, geometry)
         s = self.stage
         if s is Stage.LOITER and geometry is not None:
             s = Stage.APPROACH
@@ -107,7 +129,8 @@ class StageMachine:
             if geometry is None or not geometry.inside_cone:
                 s = Stage.GO_AROUND
                 self._go_around_since = now_s
-            elif geometry.range <= self._cone.no_return_distance_m:
+            elif (geometry.range <= self._cone.no_return_distance_m
+                  and len(self._run) >= self._cone.no_return_confirm_poses):
                 s = Stage.NO_RETURN
         elif s is Stage.GO_AROUND and now_s - self._go_around_since >= self._hold:
             s = Stage.LOITER
