@@ -122,7 +122,7 @@ def test_unreported_input_errors_are_one_line_and_programming_errors_are_not_hid
         return score_files
 
     monkeypatch.setattr(score, "score_files", raising(OSError("disk unreadable")))
-    assert main(argv) == 2
+    assert main(argv) == 1
     assert capsys.readouterr().err == "uav-landing score: disk unreadable\n"
     monkeypatch.setattr(score, "score_files", raising(TypeError("a bug")))
     with pytest.raises(TypeError, match="a bug"):

@@ -14,7 +14,7 @@ def _run(args) -> int:
     from .tracking import likelihood_benchmark, upf_benchmark
 
     if args.repeats < 1:
-        raise SystemExit("--repeats must be at least 1")
+        raise SystemExit("uav-landing bench: --repeats must be at least 1")
     print("Silhouette rendering (one instanced draw + readback per call):")
     print(render_benchmark.format_rows(render_benchmark.run(repeats=args.repeats)))
     print("\nLikelihoods, M=100, tile 64, 1280x720 frame:")

@@ -37,7 +37,7 @@ def main(argv=None) -> int:
         return 130
     except (ValueError, OSError) as exc:  # a bad input or file that a command did not report itself
         print(f"uav-landing {args.command}: {exc}", file=sys.stderr)
-        return 2
+        return 1  # as a command's own SystemExit(message); argparse's usage errors exit 2
 
 
 if __name__ == "__main__":

@@ -119,14 +119,14 @@ def _train(args) -> int:
                           threads=args.threads, loader_workers=args.loader_workers, max_images=args.max_images,
                           init=str(args.init or ""))
     except ValueError as exc:
-        raise SystemExit(f"train-detector: {exc}") from None
+        raise SystemExit(f"uav-landing train-detector: {exc}") from None
     t0 = time.perf_counter()
     try:
         if not args.export_only:
             train(cfg, resume=args.resume)
         state = load_checkpoint(cfg)
     except (FileNotFoundError, ValueError) as exc:
-        raise SystemExit(f"train-detector: {exc}") from None
+        raise SystemExit(f"uav-landing train-detector: {exc}") from None
     log = state["log"]
     onnx_path = args.export or args.out / "detector.onnx"
     last = log["epochs"][-1] if log["epochs"] else {}

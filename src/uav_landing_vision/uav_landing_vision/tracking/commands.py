@@ -25,12 +25,12 @@ def _run(args) -> int:
     from .metric_sweep import run_sweep, write_results
 
     if not args.distance > 0.5:
-        raise SystemExit("--distance must exceed 0.5 m")
+        raise SystemExit("uav-landing eval-metrics: --distance must exceed 0.5 m")
     try:
         result = run_sweep(tuple(dict.fromkeys(args.metric or _METRICS)), args.distance, args.background,
                            args.seed, args.tile)
     except ValueError as exc:
-        raise SystemExit(f"eval-metrics: {exc}") from exc
+        raise SystemExit(f"uav-landing eval-metrics: {exc}") from exc
     for test in result["tests"]:
         peaks = ", ".join(f"{label} {p['at']:g}" for label, p in test["peaks"].items())
         print(f"{test['title']}: truth {test['truth']:g} {test['unit']}; peaks at {peaks}")

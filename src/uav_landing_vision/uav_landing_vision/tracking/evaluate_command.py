@@ -41,7 +41,7 @@ def _run(args) -> int:
         result = evaluate_bag(args.bag, variants, particles=args.particles, metric=args.metric,
                               roi_source=args.roi_source, frames=args.frames, start=args.start, seed=args.seed, base=base)
     except (ValueError, ConfigError, EvaluationError, FileNotFoundError) as exc:
-        raise SystemExit(f"evaluate: {exc}") from exc
+        raise SystemExit(f"uav-landing evaluate: {exc}") from exc
     print(format_results(result))
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
