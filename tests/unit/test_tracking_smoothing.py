@@ -75,3 +75,15 @@ def test_stamps_must_increase():
     window(DT_NS, np.array([0.0, 0.0, 0.0, 1.0]))
     with pytest.raises(ValueError, match="not after"):
         window(DT_NS, np.array([0.0, 0.0, 0.0, 1.0]))
+
+
+def test_estimates_further_apart_than_the_step_are_never_averaged():
+    """A 15 fps camera (67 ms > 1.5 Δt) gets every estimate through, whatever the window's length;
+    a dropped frame inside a longer window empties it."""
+    window = RotationWindow(3, 0.051)
+    quats = [Rotation.from_rotvec([0.0, 0.0, np.radians(a)]).as_quat() for a in (0.0, 4.0, 8.0)]
+    for k, q in enumerate(quats):
+        np.testing.assert_array_equal(window(k * 66_666_667, q), q)
+    window = RotationWindow(3, 0.051)
+    window(0, quats[0])
+    np.testing.assert_array_equal(window(2 * DT_NS, quats[2]), quats[2])

@@ -18,10 +18,10 @@ from ..geometry import geodesic_angle
 
 
 class RotationWindow:
-    """The mean rotation of the last ``frames`` estimates whose stamps lie within
-    ``(frames − 1)·max_step_s`` of the newest, back to the last turn of more than
-    ``max_turn_deg`` between consecutive estimates: the mode of the Bingham fitted to them
-    (C.8)–(C.9), so ``q`` and ``−q`` count alike. ``frames = 1`` passes every estimate through."""
+    """The mean rotation of the last ``frames`` estimates, back to the last gap of more than
+    ``max_step_s`` or turn of more than ``max_turn_deg`` between consecutive estimates: the mode
+    of the Bingham fitted to them (C.8)–(C.9), so ``q`` and ``−q`` count alike. ``frames = 1``
+    passes every estimate through."""
 
     def __init__(self, frames: int, max_step_s: float, max_turn_deg: float = np.inf):
         if int(frames) != frames or frames < 1:
@@ -44,11 +44,10 @@ class RotationWindow:
         quat = np.asarray(quat, float)
         if self._recent and stamp_ns <= self._recent[-1][0]:
             raise ValueError(f"stamp {stamp_ns} ns is not after the last one ({self._recent[-1][0]} ns)")
-        if self._recent and geodesic_angle(quat[None], self._recent[-1][1])[0] > self.max_turn:
+        if self._recent and (stamp_ns - self._recent[-1][0] > self.max_step_ns
+                             or geodesic_angle(quat[None], self._recent[-1][1])[0] > self.max_turn):
             self._recent.clear()
         self._recent.append((int(stamp_ns), quat))
-        oldest = stamp_ns - (self.frames - 1) * self.max_step_ns
-        quats = np.array([q for s, q in self._recent if s >= oldest])
-        if len(quats) == 1:
+        if len(self._recent) == 1:
             return quat.copy()
-        return mean_rotation(quats)
+        return mean_rotation(np.array([q for _, q in self._recent]))
