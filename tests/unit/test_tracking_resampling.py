@@ -112,6 +112,17 @@ def test_minimum_sampling_is_deterministic_rounding(weights):
     assert residuals[extra == 1].min() >= residuals[extra == 0].max()
 
 
+@pytest.mark.parametrize("name", ["residual", "branch_kill", "reallocation", "minimum_sampling"])
+def test_integer_copy_numbers_survive_round_off(name):
+    """``M·w_m`` that is an integer in exact arithmetic gives exactly that many copies, though in
+    floating point 49·(1/49) and 47·(3/47) fall just below 1 and 3."""
+    w47 = np.concatenate([[3.0], np.ones(44), [0.0, 0.0]])  # M·w = 3, 1, ..., 1, 0, 0
+    for w in (np.ones(49), w47):
+        for seed in range(5):
+            counts = np.bincount(resample(name, w, np.random.default_rng(seed)).indices, minlength=len(w))
+            np.testing.assert_array_equal(counts, w)
+
+
 def test_residual_systematic_matches_the_sequential_recursion(weights):
     for seed in range(20):
         u = np.random.default_rng(seed).random() / M

@@ -45,6 +45,13 @@ def _from_counts(counts: np.ndarray, weights=None) -> Resampled:
     return _uniform(idx) if weights is None else Resampled(idx, np.repeat(weights, counts))
 
 
+def _floor_copies(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``M·w`` and ``⌊M·w⌋``, the floor forgiving round-off: in floating point 49·(1/49) is just
+    below 1, and a plain floor would take a copy from every such particle."""
+    scaled = len(w) * w
+    return scaled, np.floor(scaled + 1e-9)
+
+
 def _invert_cdf(w: np.ndarray, u: np.ndarray) -> np.ndarray:
     """Index m with ``Σ_{n<m} w_n < u ≤ Σ_{n≤m} w_n`` for each ``u`` in (0, 1] (App. B.1)."""
     cdf = np.cumsum(w)
@@ -82,10 +89,12 @@ def residual(weights, rng: np.random.Generator) -> Resampled:
     draws with probabilities proportional to the residuals ``M w_m − ⌊M w_m⌋``."""
     w = _normalise(weights)
     m = len(w)
-    base = np.floor(m * w).astype(np.intp)
+    scaled, base = _floor_copies(w)
+    base = base.astype(np.intp)
     rest = m - base.sum()
     if rest > 0:
-        extra = np.bincount(_invert_cdf(_normalise(m * w - base), _open_closed(rng, rest)), minlength=m)
+        residuals = _normalise(np.maximum(scaled - base, 0.0))
+        extra = np.bincount(_invert_cdf(residuals, _open_closed(rng, rest)), minlength=m)
         base = base + extra
     return _from_counts(base)
 
@@ -114,8 +123,7 @@ def branch_kill(weights, rng: np.random.Generator) -> Resampled:
     The number of copies ``M_out`` is random (expected value ``M``); each weighs ``1/M_out``.
     """
     w = _normalise(weights)
-    scaled = len(w) * w
-    base = np.floor(scaled)
+    scaled, base = _floor_copies(w)
     counts = (base + (rng.random(len(w)) < scaled - base)).astype(np.intp)
     return _from_counts(counts)
 
@@ -163,10 +171,10 @@ def reallocation(weights, rng: np.random.Generator) -> Resampled:
     """
     w = _normalise(weights)
     m = len(w)
-    scaled = m * w
-    big = scaled >= 1.0
-    counts = np.where(big, np.floor(scaled), rng.random(m) < scaled).astype(np.intp)
-    carried = np.where(big, w / np.maximum(np.floor(scaled), 1.0), 1.0 / m)
+    scaled, base = _floor_copies(w)
+    big = base >= 1.0
+    counts = np.where(big, base, rng.random(m) < scaled).astype(np.intp)
+    carried = np.where(big, w / np.maximum(base, 1.0), 1.0 / m)
     return _from_counts(counts, carried)
 
 
@@ -199,8 +207,8 @@ def minimum_sampling(weights, rng: np.random.Generator) -> Resampled:
     del rng
     w = _normalise(weights)
     m = len(w)
-    scaled = m * w
-    counts = np.floor(scaled).astype(np.intp)
+    scaled, counts = _floor_copies(w)
+    counts = counts.astype(np.intp)
     rest = m - counts.sum()
     counts[np.argsort(-(scaled - counts), kind="stable")[:rest]] += 1
     return _from_counts(counts)
