@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 from uav_landing_vision.camera import CameraModel
 from uav_landing_vision.config import ConfigError
 from uav_landing_vision.filters.motion import MotionFilterConfig
-from uav_landing_vision.geometry import geodesic_angle, quat_multiply
+from uav_landing_vision.geometry import geodesic_angle, omega_quat, quat_multiply
 from uav_landing_vision.model import fixed_wing_mesh
 from uav_landing_vision.render import Renderer
 from uav_landing_vision.sim.trajectory import FACING_CAMERA
@@ -22,6 +22,7 @@ from uav_landing_vision.tracking.track_state import TrackMonitor, TrackState, Tr
 from uav_landing_vision.tracking.upf import (
     Tracker,
     TrackerConfig,
+    constant_velocity_prediction,
     depth_band,
     load_tracker_config,
     parse_variant,
@@ -133,6 +134,22 @@ def test_prediction_carries_the_track_through_a_frame_without_hypotheses(rendere
     assert np.linalg.norm(res.position - TRUE_POS) < 0.5
     c1, _ = run(renderer, frame, "C1N0", frames=2)
     assert c1.step(frame, 2, None).state == TrackState.LOST  # C1 has no prediction
+
+
+def test_c2_prediction_is_3_12():
+    """(3.12): ``p + v Δt + ξ^l_p``, ``v + ξ^l_v``, ``q ⊗ Ω(ω) ⊗ Ω(ξ^r)`` and ``ω + ξ^r``, the
+    disturbances drawn in that order."""
+    cfg = MotionFilterConfig(dt=0.1, omega_process_std=2.0)
+    rng = np.random.default_rng(5)
+    p = ParticleSet(rng.normal(size=(6, 3)), Rotation.random(6, random_state=5).as_quat(), rng.normal(size=(6, 3)),
+                    rng.normal(size=(6, 3)) * 5.0, np.full(6, 1 / 6))
+    out = constant_velocity_prediction(p, cfg, np.random.default_rng(9))
+    noise = np.random.default_rng(9).normal(size=(3, 6, 3)) * np.array([0.05, 0.5, 2.0])[:, None, None]
+    np.testing.assert_allclose(out.pos, p.pos + p.vel * 0.1 + noise[0])
+    np.testing.assert_allclose(out.vel, p.vel + noise[1])
+    np.testing.assert_allclose(out.omega, p.omega + noise[2])
+    expected = quat_multiply(quat_multiply(p.quat, omega_quat(p.omega, 0.1)), omega_quat(noise[2], 0.1))
+    assert np.degrees(geodesic_angle(out.quat, expected)).max() < 1e-9
 
 
 def test_track_monitor_transitions():

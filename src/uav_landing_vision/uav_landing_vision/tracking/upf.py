@@ -209,9 +209,9 @@ def constant_velocity_prediction(particles: ParticleSet, cfg: MotionFilterConfig
     m, dt = len(particles), cfg.dt
     pos = particles.pos + particles.vel * dt + rng.normal(size=(m, 3)) * cfg.position_process_std
     vel = particles.vel + rng.normal(size=(m, 3)) * cfg.velocity_process_std
-    omega = particles.omega + rng.normal(size=(m, 3)) * cfg.omega_process_std
-    quat = quat_normalise(quat_multiply(particles.quat, omega_quat(omega, dt)))
-    return ParticleSet(pos, quat, vel, omega, particles.weight, particles.state)
+    xi = rng.normal(size=(m, 3)) * cfg.omega_process_std
+    quat = quat_multiply(quat_multiply(particles.quat, omega_quat(particles.omega, dt)), omega_quat(xi, dt))
+    return ParticleSet(pos, quat_normalise(quat), vel, particles.omega + xi, particles.weight, particles.state)
 
 
 def depth_prior(depth: np.ndarray, anchor: float, sigma: float, floor: float) -> np.ndarray:
