@@ -72,6 +72,20 @@ def test_load_round_trip(tmp_path, suffix):
     np.testing.assert_allclose(loaded.bounds, ref.bounds, atol=1e-4)
 
 
+def test_load_turns_every_inside_out_body_outward(tmp_path):
+    """A CAD file of separate bodies, one wound inward: the shaded view needs each outward."""
+    ref = fixed_wing_mesh("low")
+    bodies = trimesh.Trimesh(ref.vertices, ref.faces, process=False).split(only_watertight=False)
+    wing = int(np.argmax([np.ptp(b.vertices[:, 1]) for b in bodies]))
+    bodies[wing].invert()
+    path = tmp_path / "uav.obj"
+    trimesh.util.concatenate(bodies).export(path)
+    loaded = load_mesh(path)
+    assert loaded.is_closed and loaded.signed_volume == pytest.approx(ref.signed_volume, rel=1e-4)
+    parts = trimesh.Trimesh(loaded.vertices, loaded.faces, process=False).split(only_watertight=False)
+    assert len(parts) == 4 and all(p.volume > 0 for p in parts)
+
+
 def test_load_wrong_unit_names_the_probable_one(tmp_path):
     ref = fixed_wing_mesh("low")
     path = tmp_path / "uav.stl"

@@ -46,7 +46,7 @@ def load_mesh(path, unit: str = "m") -> Mesh:
     if not MIN_EXTENT_M <= extent <= MAX_EXTENT_M:
         raise MeshError(_size_message(path, unit, extent))
     if loaded.is_watertight:
-        trimesh.repair.fix_normals(loaded)  # consistent, outward winding
+        trimesh.repair.fix_normals(loaded, multibody=True)  # consistent, outward winding of every body
     mesh = Mesh(np.asarray(loaded.vertices) * UNITS[unit], np.asarray(loaded.faces))
     if not mesh.is_closed:
         warnings.warn(
