@@ -111,6 +111,26 @@ def test_camera_info_fields_round_trip(camera):
             "1..16384 px a side",
         ),
         ("image_width: [1\n", "cannot read"),
+        (
+            "image_width: 1280\nimage_height: 720\ncamera_matrix: {rows: 3, cols: 3, data: [a,0,1,0,900,1,0,0,1]}\n",
+            "'camera_matrix' must be a list of numbers",
+        ),
+        (
+            "image_width: 1280\nimage_height: 720\ncamera_matrix: {rows: 3, cols: 3, data: [900,0,1,0,900,1,0,0,1]}\n"
+            "distortion_coefficients: {rows: 1, cols: 5, data: [0, 0, 0, 0, x]}\n",
+            "'distortion_coefficients' must be a list of numbers",
+        ),
+        (
+            "image_width: 1280.5\nimage_height: 720\ncamera_matrix: {rows: 3, cols: 3, data: [900,0,1,0,900,1,0,0,1]}\n",
+            "'image_width' must be an integer",
+        ),
+        (
+            "image_width: 1280\nimage_height: 720\ncamera_matrix: {rows: 3, cols: 3, data: [900,0,1,0,900,1,0,0,1]}\n"
+            "projection_matrix: {rows: 3, cols: 4, data: [900,0,1,0,900,1,0,0,1]}\n",
+            "'projection_matrix' needs 12",
+        ),
+        ("image_width: 1280\nimage_height: 720\ncamera_matrix: {rows: 1, cols: 9, data: [900,0,1,0,900,1,0,0,1]}\n",
+         "must be 3x3"),
         ("image_width: 1280\nimage_width: 640\n", "duplicate key 'image_width'"),
     ],
 )

@@ -28,10 +28,28 @@ def _matrix(doc: dict, key: str, rows: int, cols: int, source: str) -> np.ndarra
     entry = doc.get(key)
     if not isinstance(entry, dict) or "data" not in entry:
         raise CameraInfoError(f"{source}: '{key}' must be a mapping with rows, cols and data")
-    data = np.asarray(entry["data"], dtype=float)
+    if (entry.get("rows", rows), entry.get("cols", cols)) != (rows, cols):
+        raise CameraInfoError(f"{source}: '{key}' must be {rows}x{cols}")
+    data = _numbers(entry["data"], key, source)
     if data.size != rows * cols:
         raise CameraInfoError(f"{source}: '{key}' needs {rows * cols} values, has {data.size}")
     return data.reshape(rows, cols)
+
+
+def _numbers(values, key: str, source: str) -> np.ndarray:
+    try:
+        return np.asarray(values, dtype=float).ravel()
+    except (TypeError, ValueError) as exc:
+        raise CameraInfoError(f"{source}: '{key}' must be a list of numbers ({exc})") from exc
+
+
+def _pixels(doc: dict, key: str, source: str) -> int:
+    if key not in doc:
+        raise CameraInfoError(f"{source}: missing {key}")
+    value = doc[key]
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise CameraInfoError(f"{source}: '{key}' must be an integer number of pixels, got {value!r}")
+    return value
 
 
 def load_camera_info_yaml(path, frame_id: str = DEFAULT_FRAME_ID) -> CameraModel:
@@ -51,16 +69,18 @@ def load_camera_info_yaml(path, frame_id: str = DEFAULT_FRAME_ID) -> CameraModel
         raise CameraInfoError(f"{path}: distortion model '{model}' is not supported (only {SUPPORTED_DISTORTION})")
     K = _matrix(doc, "camera_matrix", 3, 3, str(path))
     dist_entry = doc.get("distortion_coefficients", {"data": [0.0] * 5})
-    dist = np.asarray(dist_entry.get("data", []) if isinstance(dist_entry, dict) else [], dtype=float)
+    dist_data = dist_entry.get("data", []) if isinstance(dist_entry, dict) else []
+    dist = _numbers(dist_data, "distortion_coefficients", str(path))
     if "rectification_matrix" in doc:
         R = _matrix(doc, "rectification_matrix", 3, 3, str(path))
         if not np.allclose(R, np.eye(3)):
             raise CameraInfoError(f"{path}: a rectification rotation (stereo) is not supported; it must be identity")
+    if "projection_matrix" in doc:
+        _matrix(doc, "projection_matrix", 3, 4, str(path))  # unused (rectification keeps K), but well-formed
+    width, height = _pixels(doc, "image_width", str(path)), _pixels(doc, "image_height", str(path))
     try:
-        return CameraModel(int(doc["image_width"]), int(doc["image_height"]), K, dist, frame_id)
-    except KeyError as exc:
-        raise CameraInfoError(f"{path}: missing {exc.args[0]}") from exc
-    except (TypeError, ValueError) as exc:
+        return CameraModel(width, height, K, dist, frame_id)
+    except ValueError as exc:
         raise CameraInfoError(f"{path}: {exc}") from exc
 
 
