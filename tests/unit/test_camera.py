@@ -150,6 +150,20 @@ def test_bad_camera_info_fields():
         camera_from_info_fields(2**32 - 1, 1, "plumb_bob", [0] * 5, [500, 0, 320, 0, 500, 240, 0, 0, 1])
 
 
+def test_skew_is_refused(points):
+    """OpenCV's undistortion ignores K's skew, so a skewed camera's undistort_points and remap
+    tables would not invert its projection (by ~1.6 px here): such a calibration is refused."""
+    K = np.array([[800.0, 3.0, 330.0], [0.0, 780.0, 250.0], [0.0, 0.0, 1.0]])
+    dist = np.array([-0.3, 0.12, 0.001, -0.002, -0.02])
+    raw, _ = cv2.projectPoints(points, np.zeros(3), np.zeros(3), K, dist)
+    K0 = K * [[1, 0, 1], [1, 1, 1], [1, 1, 1]]
+    np.testing.assert_allclose(cv2.undistortPoints(raw, K, dist), cv2.undistortPoints(raw, K0, dist))
+    with pytest.raises(ValueError, match="skew"):
+        CameraModel(640, 480, K, dist)
+    with pytest.raises(CameraInfoError, match="skew"):
+        camera_from_info_fields(640, 480, "plumb_bob", dist, K.ravel())
+
+
 def test_projection_rejects_points_behind_camera(camera):
     with pytest.raises(ValueError, match="behind"):
         camera.project(np.array([0.0, 0.0, -1.0]))

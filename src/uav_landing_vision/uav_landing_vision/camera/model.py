@@ -16,7 +16,7 @@ MAX_IMAGE_SIDE = 16384  # px; larger than any deck camera, and GL's usual render
 
 @dataclass(frozen=True)
 class CameraModel:
-    """A calibrated camera; immutable. ``K`` is the 3×3 intrinsic matrix, ``dist`` the 5 coefficients."""
+    """A calibrated camera; immutable. ``K`` is the 3×3 intrinsic matrix (zero skew), ``dist`` the 5 coefficients."""
 
     width: int
     height: int
@@ -35,6 +35,8 @@ class CameraModel:
             raise ValueError("camera matrix K must be a finite 3x3 matrix")
         if K[0, 0] <= 0 or K[1, 1] <= 0 or K[1, 0] != 0 or K[2, 0] != 0 or K[2, 1] != 0 or K[2, 2] != 1:
             raise ValueError(f"camera matrix K is not an intrinsic matrix [[fx,s,cx],[0,fy,cy],[0,0,1]]: {K.tolist()}")
+        if K[0, 1] != 0:  # OpenCV's undistortion (points and remap tables) ignores it
+            raise ValueError(f"camera matrix K has skew {K[0, 1]}; only zero skew is supported (as in plumb_bob)")
         if dist.size == 4:
             dist = np.append(dist, 0.0)
         if dist.size != 5 or not np.all(np.isfinite(dist)):
