@@ -52,6 +52,8 @@ def test_mesh_validation():
         Mesh(np.zeros((3, 3)), np.array([[0, 1, 3]]))
     with pytest.raises(MeshError, match="level"):
         fixed_wing_mesh("medium")
+    with pytest.raises(MeshError, match="finite"):
+        Mesh([[0, 0, 0], [1, 0, 0], [0, np.nan, 0]], [[0, 1, 2]])
     open_mesh = Mesh(np.eye(3), np.array([[0, 1, 2]]))
     assert not open_mesh.is_closed
     corners = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]])

@@ -23,6 +23,8 @@ class Mesh:
             raise MeshError(f"expected vertices (V,3) and faces (F,3), got {vertices.shape} and {faces.shape}")
         if len(faces) and (faces.min() < 0 or faces.max() >= len(vertices)):
             raise MeshError("face indices out of range of the vertex array")
+        if not np.all(np.isfinite(vertices)):
+            raise MeshError("vertex coordinates must be finite")
         object.__setattr__(self, "vertices", vertices)
         object.__setattr__(self, "faces", faces)
 
