@@ -88,6 +88,18 @@ def test_load_turns_every_inside_out_body_outward(tmp_path):
     assert len(parts) == 4 and all(p.volume > 0 for p in parts)
 
 
+def test_load_textured_obj_is_closed(tmp_path):
+    """Per-corner texture coordinates (as CAD exporters write them) split no vertex."""
+    ref = fixed_wing_mesh("low")
+    lines = [f"v {x!r} {y!r} {z!r}" for x, y, z in ref.vertices.tolist()]
+    lines += ["vt 0 0", "vt 1 0", "vt 0 1"] * ref.triangle_count
+    lines += [f"f {a}/{3 * i + 1} {b}/{3 * i + 2} {c}/{3 * i + 3}" for i, (a, b, c) in enumerate(ref.faces + 1)]
+    path = tmp_path / "uav.obj"
+    path.write_text("\n".join(lines) + "\n")
+    loaded = load_mesh(path)
+    assert loaded.is_closed and len(loaded.vertices) == len(ref.vertices)
+
+
 def test_load_wrong_unit_names_the_probable_one(tmp_path):
     ref = fixed_wing_mesh("low")
     path = tmp_path / "uav.stl"

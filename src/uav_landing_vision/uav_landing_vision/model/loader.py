@@ -37,7 +37,7 @@ def load_mesh(path, unit: str = "m") -> Mesh:
     vertices = np.asarray(loaded.vertices, dtype=float)
     if not np.all(np.isfinite(vertices)):
         raise MeshError(f"mesh file {path} has non-finite vertex coordinates")
-    loaded.merge_vertices()  # STL stores each triangle's corners separately
+    loaded.merge_vertices(merge_tex=True)  # by position: STL corners, OBJ texture seams
     vertices = np.asarray(loaded.vertices, dtype=float)
     size = float(np.ptp(vertices, axis=0).max())  # in the file's unit, as the area
     if loaded.area <= 1e-12 * size**2:  # zero up to rounding
