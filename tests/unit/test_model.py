@@ -100,6 +100,17 @@ def test_load_textured_obj_is_closed(tmp_path):
     assert loaded.is_closed and len(loaded.vertices) == len(ref.vertices)
 
 
+def test_load_drops_collapsed_triangles(tmp_path):
+    """A triangle with two equal corners (tessellators leave them) covers nothing and would
+    make the closed model look open (its edge used three times)."""
+    ref = fixed_wing_mesh("low")
+    a, b = ref.faces[0, :2]
+    path = tmp_path / "uav.stl"
+    trimesh.Trimesh(ref.vertices, np.vstack([ref.faces, [[a, a, b]]]), process=False).export(path)
+    loaded = load_mesh(path)
+    assert loaded.is_closed and loaded.triangle_count == ref.triangle_count
+
+
 def test_load_wrong_unit_names_the_probable_one(tmp_path):
     ref = fixed_wing_mesh("low")
     path = tmp_path / "uav.stl"

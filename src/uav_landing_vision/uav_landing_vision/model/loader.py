@@ -38,6 +38,8 @@ def load_mesh(path, unit: str = "m") -> Mesh:
     if not np.all(np.isfinite(vertices)):
         raise MeshError(f"mesh file {path} has non-finite vertex coordinates")
     loaded.merge_vertices(merge_tex=True)  # by position: STL corners, OBJ texture seams
+    f = loaded.faces
+    loaded.update_faces((f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 2] != f[:, 0]))  # collapsed: no area
     vertices = np.asarray(loaded.vertices, dtype=float)
     size = float(np.ptp(vertices, axis=0).max())  # in the file's unit, as the area
     if loaded.area <= 1e-12 * size**2:  # zero up to rounding
