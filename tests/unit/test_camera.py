@@ -1,5 +1,7 @@
 """Camera model against OpenCV (projectPoints, undistortPoints, undistort) and camera_info I/O."""
 
+from types import SimpleNamespace
+
 import cv2
 import numpy as np
 import pytest
@@ -8,6 +10,7 @@ from uav_landing_vision.camera import (
     CameraInfoError,
     CameraModel,
     camera_from_info_fields,
+    camera_from_info_msg,
     camera_info_fields,
     load_camera_info_yaml,
     save_camera_info_yaml,
@@ -148,6 +151,25 @@ def test_bad_camera_info_fields():
         camera_from_info_fields(640, 480, "rational_polynomial", [0] * 8, [500, 0, 320, 0, 500, 240, 0, 0, 1])
     with pytest.raises(CameraInfoError, match="1..16384 px a side"):  # no remap table or framebuffer that size
         camera_from_info_fields(2**32 - 1, 1, "plumb_bob", [0] * 5, [500, 0, 320, 0, 500, 240, 0, 0, 1])
+
+
+def _info_msg(binning=(0, 0), roi=(0, 0, 0, 0)):
+    """A stand-in for ``sensor_msgs/CameraInfo`` of a 640x480 camera (ROI: x, y, width, height)."""
+    x, y, w, h = roi
+    return SimpleNamespace(width=640, height=480, distortion_model="plumb_bob", d=[0.0] * 5,
+                           k=[500.0, 0, 320, 0, 500, 240, 0, 0, 1], r=[1.0, 0, 0, 0, 1, 0, 0, 0, 1],
+                           binning_x=binning[0], binning_y=binning[1],
+                           roi=SimpleNamespace(x_offset=x, y_offset=y, width=w, height=h))
+
+
+def test_binning_and_regions_of_interest_are_refused():
+    """K and D describe the full sensor: a binned or cropped stream would not match them."""
+    for ok in (_info_msg(), _info_msg((1, 1)), _info_msg(roi=(0, 0, 640, 480))):
+        assert camera_from_info_msg(ok).width == 640
+    with pytest.raises(CameraInfoError, match="binning 2x2"):
+        camera_from_info_msg(_info_msg((2, 2)))
+    with pytest.raises(CameraInfoError, match="region of interest 320x240\\+10\\+20"):
+        camera_from_info_msg(_info_msg(roi=(10, 20, 320, 240)))
 
 
 def test_skew_is_refused(points):

@@ -3,6 +3,7 @@
 from .camera_info import (
     CameraInfoError,
     camera_from_info_fields,
+    camera_from_info_msg,
     camera_info_fields,
     load_camera_info_yaml,
     save_camera_info_yaml,
@@ -14,6 +15,7 @@ __all__ = [
     "CameraInfoError",
     "CameraModel",
     "camera_from_info_fields",
+    "camera_from_info_msg",
     "camera_info_fields",
     "load_camera_info_yaml",
     "save_camera_info_yaml",

@@ -118,6 +118,21 @@ def camera_info_fields(camera: CameraModel) -> dict:
     }
 
 
+def camera_from_info_msg(msg, frame_id: str = DEFAULT_FRAME_ID) -> CameraModel:
+    """The camera of a ``sensor_msgs/CameraInfo``; :class:`CameraInfoError` if unusable.
+
+    Binning and a region of interest are refused: K and D describe the full sensor, so the
+    images of such a driver would not match them."""
+    if msg.binning_x > 1 or msg.binning_y > 1:
+        raise CameraInfoError(f"camera_info binning {msg.binning_x}x{msg.binning_y} is not supported "
+                              "(calibrate and stream at full resolution)")
+    roi = msg.roi
+    if (roi.x_offset or roi.y_offset or (roi.width, roi.height) not in ((0, 0), (msg.width, msg.height))):
+        raise CameraInfoError(f"camera_info region of interest {roi.width}x{roi.height}+{roi.x_offset}+"
+                              f"{roi.y_offset} is not supported (the full {msg.width}x{msg.height} image only)")
+    return camera_from_info_fields(msg.width, msg.height, msg.distortion_model, msg.d, msg.k, msg.r, frame_id)
+
+
 def camera_from_info_fields(
     width, height, distortion_model, d, k, r=None, frame_id: str = DEFAULT_FRAME_ID
 ) -> CameraModel:

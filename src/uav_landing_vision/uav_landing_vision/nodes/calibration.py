@@ -1,6 +1,6 @@
 """Calibration from ``sensor_msgs/CameraInfo``, parsed and validated once per distinct calibration."""
 
-from ..camera import CameraModel, camera_from_info_fields
+from ..camera import CameraModel, camera_from_info_msg
 
 
 class Calibration:
@@ -18,10 +18,12 @@ class Calibration:
         ``use(camera)``, when given, switches the node to the new camera before it is taken; if
         it raises CameraInfoError the current camera stays, and a repeat of ``msg`` is tried again.
         """
-        key = (msg.width, msg.height, msg.distortion_model, tuple(msg.d), tuple(msg.k), tuple(msg.r))
+        roi = msg.roi
+        key = (msg.width, msg.height, msg.distortion_model, tuple(msg.d), tuple(msg.k), tuple(msg.r),
+               msg.binning_x, msg.binning_y, roi.x_offset, roi.y_offset, roi.width, roi.height)
         if key == self._key:
             return False
-        camera = camera_from_info_fields(msg.width, msg.height, msg.distortion_model, msg.d, msg.k, msg.r)
+        camera = camera_from_info_msg(msg)
         if use is not None:
             use(camera)
         self._key, self.camera = key, camera
