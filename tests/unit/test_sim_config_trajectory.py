@@ -1,5 +1,7 @@
 """Scenario loading and ground-truth trajectories: cone, speeds, attitude, ship motion, determinism."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -120,3 +122,22 @@ def test_smooth_signal_rms_and_smoothness():
     v = sig(t)
     assert np.sqrt(np.mean(v**2)) == pytest.approx(2.0, rel=0.05)
     assert np.abs(np.diff(v)).max() < 2.0 * 2 * np.pi * 0.5 * 0.034 * 2.5
+
+
+def test_approach_banks_into_its_turns():
+    # Without disturbances the roll is the coordinated turn's: the lift (body z) leans to the
+    # side the UAV accelerates to (the centre of the turn), never away from it.
+    s = load_scenario("normal")
+    calm = dict.fromkeys(("roll_far_deg", "roll_near_deg", "pitch_far_deg", "pitch_near_deg",
+                          "yaw_far_deg", "yaw_near_deg"), 0.0)
+    s = replace(s, approach=replace(s.approach, path_wander_deg=5.0, **calm))
+    for seed in range(3):
+        tr = make_trajectory(s, generators(seed))
+        rot = (tr.cam_rot @ quat_to_matrix(tr.quat))[5:-5]  # UAV attitude in M (an inertial frame)
+        acc = np.gradient(np.gradient(tr.uav_pos, s.dt_s, axis=0), s.dt_s, axis=0)[5:-5]
+        heading = np.arctan2(rot[:, 1, 0], rot[:, 0, 0])
+        left = np.stack([-np.sin(heading), np.cos(heading)], axis=-1)  # horizontal, left of the nose
+        lateral = np.einsum("ni,ni->n", acc[:, :2], left)
+        lean = np.einsum("ni,ni->n", rot[:, :2, 2], left)
+        turning = np.abs(lateral) > 0.5  # m/s²: a bank of 3° or more
+        assert turning.sum() > 20 and np.all(np.sign(lean[turning]) == np.sign(lateral[turning]))

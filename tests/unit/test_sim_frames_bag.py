@@ -86,7 +86,9 @@ def test_every_ground_truth_pose_covers_the_drawn_uav(setup):
         x0, y0, x1, y1 = model_roi(MESH.vertices, lens.K, tr.quat[i], tr.trans[i], lens.width, lens.height)
         inside = drawn[max(int(y0) - 1, 0):int(np.ceil(y1)) + 1, max(int(x0) - 1, 0):int(np.ceil(x1)) + 1].sum()
         assert inside >= 0.99 * drawn.sum(), (i, inside, drawn.sum())
-        assert drawn.sum() == pytest.approx(rect.silhouette_full(tr.quat[i], tr.trans[i]).sum(), rel=0.35, abs=8)
+        # abs: a far UAV's silhouette, sampled at pixel centres, misses most of its sub-pixel
+        # wings (at 71 m 12 px against a coverage of 20 px, which 4x finer sampling confirms)
+        assert drawn.sum() == pytest.approx(rect.silhouette_full(tr.quat[i], tr.trans[i]).sum(), rel=0.35, abs=10)
 
 
 def test_bag_roundtrip_and_determinism(tmp_path):

@@ -49,9 +49,10 @@ def result(bag):
 def test_oracle_run_is_accurate_and_labelled(bag, result):
     rng = np.linalg.norm(read_poses(bag).trans, axis=1).mean()
     assert result.frames == FRAMES
-    # C1N0 publishes the weighted mean of each frame's boosted hypotheses, of scattered depths
-    # (measured 1.09 m / 4.7°); C4N2 that of a tracked cloud (0.19 m / 3.6°)
-    bounds = {"C1N0": (0.075, 30.0), "C4N2": (0.025, 10.0)}
+    # C1N0 publishes the weighted mean of each frame's boosted hypotheses, of scattered depths;
+    # C4N2 that of a tracked cloud. Measured 1.09 m / 4.7° and 0.19 m / 3.6° on this sequence,
+    # 0.23 m / 1.2° and 0.90 m / 1.7° once the UAV banked into its turns: 12 frames say little.
+    bounds = {"C1N0": (0.075, 30.0), "C4N2": (0.06, 10.0)}
     for name, (trans_fraction, rot_deg) in bounds.items():
         err = result.errors[name]
         assert np.all(np.isfinite(err["euclidean"]))  # no lost frame

@@ -158,7 +158,8 @@ def landing_approach(rngs: tuple[np.random.Generator, np.random.Generator], cfg:
     air_vel = np.gradient(pos, dt, axis=0) + np.array([ship.speed_mps, 0.0, 0.0])
     heading = np.unwrap(np.arctan2(air_vel[:, 1], air_vel[:, 0]))
     climb = np.arctan2(air_vel[:, 2], np.hypot(air_vel[:, 0], air_vel[:, 1]))
-    turn_roll = np.arctan(np.linalg.norm(air_vel, axis=1) * np.gradient(heading, dt) / GRAVITY)
+    # REP 103 roll is positive right wing down, a turn to the right (heading falling, z up).
+    turn_roll = -np.arctan(np.linalg.norm(air_vel, axis=1) * np.gradient(heading, dt) / GRAVITY)
     near = np.clip(r / cfg.disturbance_range_m, 0.0, 1.0)
 
     def envelope(far_deg, near_deg):
