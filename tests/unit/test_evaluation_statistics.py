@@ -82,6 +82,19 @@ def test_score_aligns_by_stamp_and_counts_lost_frames():
     assert summary["translation_m"]["median"] == 1.5
 
 
+def test_a_pose_without_a_finite_orientation_is_lost_in_every_column():
+    q = np.tile([0, 0, 0, 1.0], (3, 1))
+    q_est = q.copy()
+    q_est[1] = np.nan
+    t_est = np.ones((3, 3))
+    t_est[1] = [10.0, 0.0, 0.0]
+    e = pose_errors(np.zeros((3, 3)), q, t_est, q_est)
+    assert all(np.isnan(e[c][1]) and np.isfinite(e[c][0]) for c in e)
+    summary = variant_summary(e)
+    assert summary["lost_frames_pct"] == pytest.approx(100 / 3)
+    assert summary["translation_m"]["p5"] == summary["translation_m"]["p95"] == pytest.approx(np.sqrt(3))
+
+
 def test_align_takes_an_empty_truth_and_refuses_repeated_estimate_stamps():
     quat = np.tile([0, 0, 0, 1.0], (2, 1))
     est = Poses(np.array([10, 20]), np.zeros((2, 3)), quat)

@@ -42,12 +42,13 @@ def pose_errors(t_true, q_true, t_est, q_est) -> dict[str, np.ndarray]:
 
     ``euclidean`` ‖t̂ − t‖; ``x, y, z`` the signed coordinate differences t̂ − t; ``geodesic``
     the angle (3.3)/(6.3); ``alpha, beta, gamma`` the Z-Y-X Euler angles of q_e (6.4).
-    Rows with a NaN estimate stay NaN (lost frames).
+    Rows where the estimate's position or orientation is not finite are NaN in every column
+    (lost frames).
     """
     t_true, t_est = np.asarray(t_true, float), np.asarray(t_est, float)
     q_true, q_est = np.asarray(q_true, float), np.asarray(q_est, float)
-    diff = t_est - t_true
     ok = np.all(np.isfinite(q_est), axis=-1) & np.all(np.isfinite(t_est), axis=-1)
+    diff = np.where(ok[:, None], t_est - t_true, np.nan)
     geo = np.full(len(q_true), np.nan)
     eul = np.full((len(q_true), 3), np.nan)
     if np.any(ok):
