@@ -6,7 +6,7 @@ model inside the image (``view``), rendered shaded (sun light) over the simulato
 background seen from the still deck camera (one of a few pre-drawn frames, the sea moving
 between them; no noise or blur). The ROI is the rendered silhouette's bounding box, grown as the
 boosting stage grows ROIs. Among the top-k hypotheses the one with the smallest geodesic error
-(6.3) is taken; its errors are ground truth minus hypothesis per coordinate and the Z-Y-X Euler
+(6.3) is taken; its errors are hypothesis minus ground truth per coordinate and the Z-Y-X Euler
 angles of q_g ⊗ q̄_r (6.4).
 """
 
