@@ -95,6 +95,26 @@ def test_a_pose_without_a_finite_orientation_is_lost_in_every_column():
     assert summary["translation_m"]["p5"] == summary["translation_m"]["p95"] == pytest.approx(np.sqrt(3))
 
 
+def test_unusable_poses_and_times_are_refused_naming_where(tmp_path):
+    from uav_landing_vision.evaluation.score import mean_ms_per_frame
+
+    quat = np.tile([0, 0, 0, 1.0], (3, 1))
+    truth = Poses(np.array([10, 20, 30]), np.zeros((3, 3)), quat)
+    zero = quat.copy()
+    zero[1] = 0.0
+    with pytest.raises(ValueError, match=r"the estimate has no usable pose .* at stamp\(s\) \[20\]"):
+        score(truth, Poses(truth.stamps_ns, np.zeros((3, 3)), zero))
+    with pytest.raises(ValueError, match=r"the ground truth has no usable pose .* at stamp\(s\) \[20\]"):
+        score(Poses(truth.stamps_ns, np.array([[0, 0, 1.0], [np.nan, 0, 1], [0, 0, 1]]), quat), truth)
+    lost = quat.copy()
+    lost[1] = np.nan
+    assert np.isnan(score(truth, Poses(truth.stamps_ns, np.zeros((3, 3)), lost))["geodesic"][1])
+    path = tmp_path / "est.csv"
+    path.write_text("stamp_ns,x,y,z,qx,qy,qz,qw,ms\n10,0,0,5,0,0,0,1,12.5\n20,0,0,5,0,0,0,1,slow\n")
+    with pytest.raises(ValueError, match=r"est.csv: line 3: ms 'slow' is not a number"):
+        mean_ms_per_frame(path)
+
+
 def test_align_takes_an_empty_truth_and_refuses_repeated_estimate_stamps():
     quat = np.tile([0, 0, 0, 1.0], (2, 1))
     est = Poses(np.array([10, 20]), np.zeros((2, 3)), quat)

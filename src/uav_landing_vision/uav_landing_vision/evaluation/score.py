@@ -26,9 +26,23 @@ def align(truth: Poses, estimate: Poses) -> Poses:
     return Poses(truth.stamps_ns, trans, quat)
 
 
+def _refuse_unusable(poses: Poses, what: str, lost_allowed: bool) -> None:
+    """ValueError naming the stamps of a zero quaternion or, unless ``lost_allowed`` (an estimate's
+    lost frames), of a value that is not finite."""
+    norm = np.linalg.norm(poses.quat, axis=1)
+    bad = norm < 1e-12
+    if not lost_allowed:
+        bad |= ~(np.isfinite(norm) & np.all(np.isfinite(poses.trans), axis=1))
+    if np.any(bad):
+        raise ValueError(f"the {what} has no usable pose (a zero quaternion or a value that is not finite) "
+                         f"at stamp(s) {poses.stamps_ns[bad][:3].tolist()}")
+
+
 def score(truth: Poses, estimate: Poses) -> dict[str, np.ndarray]:
     """Per-frame errors (see :func:`pose_errors`) over the ground-truth frames."""
     est = align(truth, estimate)
+    _refuse_unusable(truth, "ground truth", lost_allowed=False)
+    _refuse_unusable(est, "estimate", lost_allowed=True)
     return pose_errors(truth.trans, truth.quat, est.trans, est.quat)
 
 
@@ -37,8 +51,15 @@ def mean_ms_per_frame(path) -> float | None:
     path = Path(path)
     if path.suffix != ".csv":
         return None
+    values = []
     with path.open(newline="") as f:
-        values = [float(r["ms"]) for r in csv.DictReader(f) if r.get("ms") not in (None, "")]
+        reader = csv.DictReader(f)
+        for row in reader:
+            if row.get("ms") not in (None, ""):
+                try:
+                    values.append(float(row["ms"]))
+                except ValueError:
+                    raise ValueError(f"{path}: line {reader.line_num}: ms {row['ms']!r} is not a number") from None
     return float(np.mean(values)) if values else None
 
 
