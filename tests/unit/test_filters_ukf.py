@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
+from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter, unscented_transform
 from scipy.spatial.transform import Rotation
 
 from uav_landing_vision.filters.ukf import RotationUKF, TranslationUKF, UnscentedParams
@@ -36,6 +36,41 @@ def test_translation_ukf_equals_filterpy(params):
             ref.update(z[i])
             np.testing.assert_allclose(state.x[i], ref.x, atol=1e-9, rtol=0)
             np.testing.assert_allclose(state.p[i], ref.P, atol=1e-9, rtol=0)
+
+
+@pytest.mark.parametrize("params", [UnscentedParams(), UnscentedParams(alpha=0.5, beta=2.0, kappa=1.0)])
+def test_rotation_ukf_equals_filterpy_on_the_error_state(params):
+    """filterpy runs ``[d, ω]`` about a reference that moves with the central sigma point (A.3),
+    (A.8) and is reset by the update (A.9); rotations and ``d = 4·MRP`` (a = 1, f = 4) by scipy."""
+    rng = np.random.default_rng(4)
+    q = np.diag([1e-3, 2e-3, 3e-3, 0.5, 0.3, 0.2])
+    r = np.diag([0.01, 0.02, 0.015])
+    p0 = np.diag([0.05, 0.02, 0.03, 1.0, 2.0, 0.5])
+    ukf = RotationUKF(DT, q, r, params)
+    q0, w0 = Rotation.random(random_state=5), rng.normal(0, 3, 3)
+    state = ukf.init(q0.as_quat()[None], w0[None], p0)
+    ref_q = q0
+    pts = MerweScaledSigmaPoints(6, alpha=params.alpha, beta=params.beta, kappa=params.kappa)
+    ref = UnscentedKalmanFilter(6, 3, DT, hx=lambda x: x[:3], fx=None, points=pts)
+    ref.x, ref.P, ref.Q, ref.R = np.r_[np.zeros(3), w0], p0.copy(), np.zeros((6, 6)), r
+
+    def moved(ref_q, x):
+        return ref_q * Rotation.from_mrp(x[:3] / 4) * Rotation.from_rotvec(x[3:] * DT)
+
+    for _ in range(15):
+        new_q = moved(ref_q, ref.x)
+        ref.P = ref.P + q  # (A.12): Q before the sigma points
+        # filterpy's predict redraws the sigma points afterwards; (A.22) reuses the propagated ones.
+        ref.compute_process_sigmas(DT, lambda x, dt: np.r_[4 * (new_q.inv() * moved(ref_q, x)).as_mrp(), x[3:]])
+        ref.x, ref.P = unscented_transform(ref.sigmas_f, ref.Wm, ref.Wc)
+        z = new_q * Rotation.from_rotvec(rng.normal(0, 0.1, 3))
+        ref.update(4 * (new_q.inv() * z).as_mrp())
+        ref_q, ref.x[:3] = new_q * Rotation.from_mrp(ref.x[:3] / 4), 0.0
+
+        state = ukf.update(ukf.predict(state), z.as_quat()[None])
+        assert (Rotation.from_quat(state.q[0]) * ref_q.inv()).magnitude() < 1e-9
+        np.testing.assert_allclose(state.x[0], ref.x, atol=1e-9, rtol=0)
+        np.testing.assert_allclose(state.p[0], ref.P, atol=1e-9, rtol=0)
 
 
 def test_rotation_ukf_prediction_follows_the_angular_velocity():
@@ -76,3 +111,7 @@ def test_invalid_parameters_are_errors():
         TranslationUKF(0.0, np.ones(6), np.ones(3))
     with pytest.raises(ValueError):
         RotationUKF(DT, np.ones(5), np.ones(3))
+    with pytest.raises(ValueError, match="positive definite"):
+        TranslationUKF(DT, np.ones(6), np.array([1.0, 1.0, 0.0]))  # singular
+    with pytest.raises(ValueError, match="symmetric"):
+        TranslationUKF(DT, np.ones(6), np.eye(3) + np.diag([0.1, 0.1], k=1))
