@@ -185,6 +185,27 @@ def test_tangent_covariance_inverts_small_rotation_moment():
     q = Rotation.random(random_state=12).as_quat()
     s = bingham.frame(q) @ bingham.small_rotation_moment(sigma) @ bingham.frame(q).T
     np.testing.assert_allclose(bingham.tangent_covariance(q, s), sigma, atol=1e-12)
+    assert np.trace(s) == pytest.approx(1.0, abs=1e-12)  # E[e eᵀ] of a unit quaternion
+
+
+def test_scatter_without_weights_is_the_mean_outer_product():
+    q = Rotation.random(5, random_state=13).as_quat()
+    np.testing.assert_allclose(bingham.scatter(q), np.mean(q[:, :, None] * q[:, None, :], axis=0), atol=1e-15)
+
+
+def test_concentrations_beyond_the_table_are_clamped_in_the_evidence():
+    z_max = bingham.max_concentration()
+    np.testing.assert_array_equal(bingham.clamp_concentration(np.array([-2 * z_max, -1.0, 0.0])), [-z_max, -1.0, 0.0])
+    m = np.linalg.qr(np.random.default_rng(14).standard_normal((4, 4)))[0]
+    z = np.full(3, -0.9 * z_max)  # the product's concentrations are −1.8 z_max
+    assert np.isfinite(bingham.product_log_evidence(m, z, m, z))
+
+
+@pytest.mark.parametrize("z", [(-1.0, -2.0, 0.0), (-1.0, -2.0, -3.0, -0.5), (-1.0, -2.0), (-1.0, np.nan, -3.0)])
+def test_invalid_concentrations_are_errors(z):
+    with pytest.raises(ValueError, match="process_z"):
+        bingham.check_concentration(z, "process_z")
+    np.testing.assert_array_equal(bingham.check_concentration((-1.0, -2.0, -3.0, 0.0), "z"), [-1.0, -2.0, -3.0])
 
 
 def test_lookups_outside_the_table_are_errors():
