@@ -171,6 +171,8 @@ def test_euler_covariance_undefined_at_vertical_pitch():
         ([0, 0, 1], [0, 0, 0, 1], np.triu(np.ones((6, 6))), "symmetric"),
         ([0, 0, 1], [0, 0, 0, 1], np.full((6, 6), np.inf), "finite"),
         ([0, 0, 1], [0, 0, 0, 1], np.eye(5), "6×6"),
+        ([0, 0, 1], [0, 0, 0, 1], np.diag([1.0, 1, 1, 1, 1, -1e-6]), "positive semi-definite"),
+        ([0, 0, 1], [0, 0, 0, 1], np.eye(6) + np.diag([1e-6], k=5), "symmetric"),
     ],
 )
 def test_bad_pose_is_rejected(position, quat, cov, message):
@@ -181,3 +183,11 @@ def test_bad_pose_is_rejected(position, quat, cov, message):
 def test_flat_ros_covariance_is_accepted():
     _, _, cov = validate_pose([0, 0, 1], [0, 0, 0, 1], np.eye(6).ravel())
     assert cov.shape == (6, 6)
+
+
+def test_rounding_in_a_small_covariance_is_accepted():
+    """The symmetry and PSD tolerances scale with max(1, |cov|), not with a tiny covariance."""
+    cov = np.diag([1e-6, 1e-6, 1e-6, 1e-8, 1e-8, 0.0])
+    cov[0, 1], cov[1, 0] = 1e-7, 1e-7 + 1e-12
+    cov[5, 5] = -1e-12
+    validate_pose([0, 0, 1], [0, 0, 0, 1], cov)

@@ -10,7 +10,7 @@ from test_gcs_frames import camera_pose_from_truth
 
 from uav_landing_vision.gcs import GcsBridge, Stage, StageMachine, cone_geometry, load_config
 from uav_landing_vision.gcs.bridge import TRACKER_ACQUIRING, TRACKER_LOST, TRACKER_TRACKING
-from uav_landing_vision.gcs.landing import glide_slope_angle, lateral_angle
+from uav_landing_vision.gcs.landing import ConeGeometry, glide_slope_angle, inside_cone, lateral_angle
 
 CONFIG = load_config(Path(__file__).parents[2] / "config" / "gcs_bridge.yaml")
 CONE = CONFIG.cone  # α1 10°, α2 3°, glide slope 6°, β2 20°, d 50 m, no return 10 m, course 0
@@ -126,6 +126,12 @@ def test_cone_boundaries():
     lat = 30.0 * math.cos(GAMMA) * math.tan(math.radians(9.99))
     assert cone_geometry(on_axis(30.0, lateral_m=lat), CONE).inside_cone
     assert not cone_geometry(on_axis(30.0, lateral_m=-1.003 * lat), CONE).inside_cone  # |β1| > β2/2
+
+
+def test_cone_edges_are_inside():
+    """Fig. 1.5's inequalities are not strict: the edges of the cone are inside it."""
+    assert inside_cone(CONE.distance_m, CONE.alpha1, 0.5 * CONE.beta2, CONE)
+    assert inside_cone(CONE.distance_m, CONE.alpha2, -0.5 * CONE.beta2, CONE)
 
 
 # --- scripted flights through the bridge -----------------------------------------------------
@@ -362,6 +368,37 @@ def test_stage_machine_needs_a_track_to_leave_loiter():
     assert machine.update(0.0, None, -math.inf) == Stage.LOITER
     assert machine.update(0.1, cone_geometry(on_axis(40.0), CONE), 0.05) == Stage.APPROACH
     assert machine.update(0.2, None, 0.05) == Stage.LOITER  # lost before the descent: loiter again
+
+
+def geometry_at(rng, inside=True):
+    return ConeGeometry(rng, GAMMA, 0.0, 0.0, inside)
+
+
+def test_stage_machine_holds_go_around_from_the_moment_it_began():
+    machine = StageMachine(CONE, go_around_hold_s=10.0)
+    for t in (100.0, 100.1):
+        machine.update(t, geometry_at(30.0), t)
+    assert machine.stage == Stage.LAND
+    assert machine.update(100.2, None, 100.1) == Stage.GO_AROUND
+    assert machine.update(110.1, geometry_at(30.0), 110.1) == Stage.GO_AROUND  # 9.9 s: still held
+    assert machine.update(110.2, geometry_at(30.0), 110.2) == Stage.LOITER
+
+
+def test_stage_machine_commits_at_the_no_return_distance():
+    machine = StageMachine(CONE, go_around_hold_s=1.0)
+    for k, rng in enumerate([12.0, 11.0]):
+        machine.update(0.1 * k, geometry_at(rng), 0.1 * k)
+    assert machine.update(0.2, geometry_at(CONE.no_return_distance_m), 0.2) == Stage.NO_RETURN
+    assert machine.update(0.3, geometry_at(9.0, inside=False), 0.3) == Stage.NO_RETURN
+
+
+def test_poses_outside_the_cone_do_not_count_towards_no_return():
+    machine = StageMachine(CONE, go_around_hold_s=1.0)
+    for k, rng in enumerate([12.0, 11.0]):  # APPROACH outside the cone, already within no-return range
+        machine.update(0.1 * k, geometry_at(rng, inside=False), 0.1 * k)
+    assert machine.update(0.2, geometry_at(9.8), 0.2) == Stage.LAND
+    assert machine.update(0.3, geometry_at(9.6), 0.3) == Stage.LAND  # two in-cone poses of three
+    assert machine.update(0.4, geometry_at(9.4), 0.4) == Stage.NO_RETURN
 
 
 def test_dataclass_config_is_what_the_bridge_uses():
