@@ -19,8 +19,19 @@ from uav_landing_vision.resources import config_path
 
 
 @pytest.fixture(scope="module")
-def camera():
+def shipped():
     return load_camera_info_yaml(config_path("camera.yaml"))
+
+
+# Unlike the shipped calibration: fx ≠ fy, an off-centre principal point and k3 ≠ 0.
+GENERAL = CameraModel(640, 480, [[800.0, 0.0, 330.0], [0.0, 760.0, 250.0], [0.0, 0.0, 1.0]],
+                      [-0.25, 0.1, 0.001, -0.002, -0.03])
+
+
+@pytest.fixture(scope="module", params=["shipped", "general"])
+def camera(request, shipped):
+    """The shipped calibration and :data:`GENERAL`."""
+    return shipped if request.param == "shipped" else GENERAL
 
 
 @pytest.fixture
@@ -33,10 +44,10 @@ def points(camera):
     return np.stack([x, y, z], axis=-1)
 
 
-def test_default_calibration(camera):
-    assert (camera.width, camera.height) == (1280, 720)
-    assert camera.is_distorted
-    assert camera.dist.shape == (5,)
+def test_default_calibration(shipped):
+    assert (shipped.width, shipped.height) == (1280, 720)
+    assert shipped.is_distorted
+    assert shipped.dist.shape == (5,)
 
 
 def test_project_matches_cv2_project_points(camera, points):
@@ -189,6 +200,8 @@ def test_skew_is_refused(points):
 def test_projection_rejects_points_behind_camera(camera):
     with pytest.raises(ValueError, match="behind"):
         camera.project(np.array([0.0, 0.0, -1.0]))
+    with pytest.raises(ValueError, match="behind"):
+        camera.project_pinhole(np.array([1.0, 0.0, 0.0]))  # in the camera's plane
     with pytest.raises(ValueError, match="shape"):
         camera.project(np.zeros((3, 2)))
 
@@ -198,3 +211,15 @@ def test_camera_is_immutable(camera):
         camera.K[0, 0] = 1.0
     with pytest.raises(ValueError):
         CameraModel(640, 480, np.eye(2))
+
+
+@pytest.mark.parametrize("k", [[[800, 0, 320], [5, 800, 240], [0, 0, 1]], [[800, 0, 320], [0, 800, 240], [0, 0, 2]],
+                               [[800, 0, 320], [0, 800, 240], [1, 0, 1]], [[800, 0, 320], [0, -800, 240], [0, 0, 1]]])
+def test_a_matrix_that_is_not_intrinsic_is_refused(k):
+    with pytest.raises(ValueError, match="not an intrinsic matrix"):
+        CameraModel(640, 480, k)
+
+
+def test_four_distortion_coefficients_mean_k3_zero():
+    camera = CameraModel(640, 480, GENERAL.K, [-0.2, 0.05, 0.001, -0.002])
+    np.testing.assert_array_equal(camera.dist, [-0.2, 0.05, 0.001, -0.002, 0.0])
