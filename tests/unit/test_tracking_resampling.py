@@ -135,6 +135,23 @@ def test_residual_systematic_matches_the_sequential_recursion(weights):
         np.testing.assert_array_equal(got, counts)
 
 
+def test_systematic_counts_are_floor_or_floor_plus_one_and_stratified_ones_are_not(weights):
+    """Equally spaced points give ⌊M·w⌋ or ⌊M·w⌋ + 1 copies; one independent point per stratum
+    can give a particle further from M·w."""
+    floor = np.floor(M * weights)
+    for name in ("systematic", "residual_systematic"):
+        counts = copy_counts(name, weights, reps=500)
+        assert np.all((counts == floor) | (counts == floor + 1))
+    counts = copy_counts("stratified", weights, reps=500)
+    assert np.any((counts < floor) | (counts > floor + 1))
+
+
+def test_cdf_inversion_at_the_cumulative_weights():
+    """``u`` equal to a cumulative weight takes the particle that ends there, never a zero weight."""
+    w = np.array([0.25, 0.25, 0.0, 0.5])
+    np.testing.assert_array_equal(rs._invert_cdf(w, np.array([0.25, 0.5, 0.75, 1.0])), [0, 1, 3, 3])
+
+
 def test_branch_kill_counts_are_floor_or_floor_plus_one(weights):
     counts = copy_counts("branch_kill", weights, reps=500)
     assert np.all((counts == np.floor(M * weights)) | (counts == np.floor(M * weights) + 1))
@@ -191,6 +208,16 @@ def test_fixed_size_restores_the_particle_number(name, weights):
         assert len(idx) == M and np.all(np.diff(idx) >= 0)
         if len(res.indices) >= M:  # only dropping: a sub-multiset of the scheme's copies
             assert np.all(np.bincount(idx, minlength=M) <= np.bincount(res.indices, minlength=M))
+
+
+def test_fixed_size_drops_copies_uniformly_and_fills_systematically():
+    rng = np.random.default_rng(12)
+    many = rs.Resampled(np.arange(10), np.full(10, 0.1))
+    kept = np.array([np.bincount(fixed_size(many, np.ones(10), rng, 5), minlength=10) for _ in range(REPS)])
+    assert_mean(kept, np.full(10, 0.5), integer=True)
+    few = rs.Resampled(np.array([0]), np.ones(1))
+    w = np.array([0.25, 0.25, 0.5])  # four systematic points on it: one, one and two copies
+    np.testing.assert_array_equal(fixed_size(few, w, rng, 5), [0, 0, 1, 2, 2])
 
 
 def test_weights_whose_sum_overflows_still_resample():
