@@ -108,6 +108,20 @@ def test_colour_metric_matches_a_per_pixel_oracle(renderer):
     assert np.all((got > 0) & (got < 1))
 
 
+def test_a_tile_with_an_empty_region_scores_zero(renderer):
+    """A silhouette filling its box has no outer region; one whose inside pixels all fall off the
+    frame has no inner region: (5.14) is undefined for both, which score 0, not 1."""
+    frame, _, _ = hand_made_tiles(renderer)
+    t = 16
+    gamma = np.zeros((t, t), np.uint8)
+    gamma[0, :] = gamma[:, 0] = 1  # row 0 and column 0 fall just above and left of the frame
+    masks = np.stack([np.ones((t, t), np.uint8), gamma])
+    boxes = np.array([[300.0, 200.0, 332.0, 232.0], [-2.0, -2.0, 30.0, 30.0]])
+    lik = ColourHistogramLikelihood(renderer)
+    lik.prepare(frame)
+    np.testing.assert_array_equal(lik.score_batch(SilhouetteBatch(masks, boxes, np.ones(2, bool))), [0.0, 0.0])
+
+
 SHIFTS = np.array([[0.0, 0.0], [0.5, 0.0], [-1.25, 0.75], [30.0, -20.0]])
 
 
