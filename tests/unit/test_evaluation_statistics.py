@@ -72,11 +72,13 @@ def test_pose_errors_flip_antipodal_and_translation():
 
 def test_score_aligns_by_stamp_and_counts_lost_frames():
     truth = Poses(np.array([10, 20, 30, 40]), np.zeros((4, 3)), np.tile([0, 0, 0, 1.0], (4, 1)))
-    est = Poses(np.array([40, 20, 99]), np.array([[1.0, 0, 0], [0, 2.0, 0], [9, 9, 9]]), np.tile([0, 0, 0, 1.0], (3, 1)))
+    est = Poses(np.array([40, 20, 99]), np.array([[1.0, 0, 0], [0, 2.0, 0], [9, 9, 9]]),
+                euler_zyx_to_quat(np.radians([[0, 0, 10], [0, 0, 20], [0, 0, 30]])))
     assert np.isnan(align(truth, est).trans[0]).all()
     err = score(truth, est)
     assert np.isnan(err["euclidean"][[0, 2]]).all()
     assert err["euclidean"][[1, 3]].tolist() == [2.0, 1.0]
+    np.testing.assert_allclose(err["geodesic"][[1, 3]], [20.0, 10.0])  # each pose's own orientation
     summary = variant_summary(err, 12.5)
     assert summary["lost_frames_pct"] == 50.0
     assert summary["translation_m"]["median"] == 1.5
@@ -113,6 +115,10 @@ def test_unusable_poses_and_times_are_refused_naming_where(tmp_path):
     path.write_text("stamp_ns,x,y,z,qx,qy,qz,qw,ms\n10,0,0,5,0,0,0,1,12.5\n20,0,0,5,0,0,0,1,slow\n")
     with pytest.raises(ValueError, match=r"est.csv: line 3: ms 'slow' is not a number"):
         mean_ms_per_frame(path)
+    path.write_text("stamp_ns,x,y,z,qx,qy,qz,qw,ms\n10,0,0,5,0,0,0,1,10\n20,0,0,5,0,0,0,1,\n30,0,0,5,0,0,0,1,20\n"
+                    "40,0,0,5,0,0,0,1,60\n")
+    assert mean_ms_per_frame(path) == 30.0  # the mean of the frames that give one
+    assert mean_ms_per_frame(tmp_path / "est.bag") is None  # a bag holds no times
 
 
 def test_align_takes_an_empty_truth_and_refuses_repeated_estimate_stamps():
