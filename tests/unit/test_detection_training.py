@@ -3,14 +3,13 @@ through the runtime."""
 
 import numpy as np
 import pytest
+import torch
 
-torch = pytest.importorskip("torch")
-
-from uav_landing_vision.detection.detector import Detector, DetectorConfig, decode, letterbox  # noqa: E402
-from uav_landing_vision.detection.evaluation import average_precision, match_frame, summarise  # noqa: E402
-from uav_landing_vision.detection.export import export_onnx  # noqa: E402
-from uav_landing_vision.detection.network import STRIDES, UavDetectorNet, decode_torch  # noqa: E402
-from uav_landing_vision.detection.train import build_targets, detection_loss, giou_loss, random_crop  # noqa: E402
+from uav_landing_vision.detection.detector import Detector, DetectorConfig, decode, letterbox
+from uav_landing_vision.detection.evaluation import average_precision, match_frame, summarise
+from uav_landing_vision.detection.export import export_onnx
+from uav_landing_vision.detection.network import STRIDES, UavDetectorNet, decode_torch
+from uav_landing_vision.detection.train import build_targets, detection_loss, giou_loss, random_crop
 
 
 def _positives(targets):

@@ -3,15 +3,12 @@ the export against torch, and the verifier's product in the detector's scores.""
 
 import numpy as np
 import pytest
+import torch
 
-from uav_landing_vision.detection.verifier import CropGeometry, box_crops
-
-torch = pytest.importorskip("torch")
-
-from uav_landing_vision.detection.detector import Detector, DetectorConfig  # noqa: E402
-from uav_landing_vision.detection.export import export_onnx, export_verifier_onnx  # noqa: E402
-from uav_landing_vision.detection.network import BoxVerifierNet, UavDetectorNet  # noqa: E402
-from uav_landing_vision.detection.verifier import BoxVerifier  # noqa: E402
+from uav_landing_vision.detection.detector import Detector, DetectorConfig
+from uav_landing_vision.detection.export import export_onnx, export_verifier_onnx
+from uav_landing_vision.detection.network import BoxVerifierNet, UavDetectorNet
+from uav_landing_vision.detection.verifier import BoxVerifier, CropGeometry, box_crops
 
 
 def _coded_image(width=400, height=300):
