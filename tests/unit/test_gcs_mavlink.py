@@ -126,6 +126,10 @@ def test_scripted_approach_decodes_to_the_truth(receiver):
         assert lt.time_usec == usec and lt.frame == 12 and lt.position_valid == 1  # MAV_FRAME_BODY_FRD
         assert_f32([lt.x, lt.y, lt.z, lt.distance], [*target, np.linalg.norm(p)])
         assert lt.x > 0  # the net is ahead
+        azimuth, depression = np.arctan2(target[1], target[0]), np.arctan2(target[2], np.hypot(*target[:2]))
+        assert_f32([lt.angle_x, lt.angle_y], [azimuth, depression])
+        q_body_l = np.array([truth_q[3], *-truth_q[:3]])  # the landing frame in the body frame
+        assert_f32(np.array(lt.q) * np.sign(lt.q[0]), q_body_l * np.sign(q_body_l[0]))
 
     texts = [m.text for m in got["STATUSTEXT"]]
     assert texts[0].startswith("VISION APPROACH")
