@@ -95,8 +95,8 @@ class TrackerConfig:
     covariance_floor_m: float = 0.05  # σ added to each translation variance
     # ours, per band of the estimate's depth (bands split at covariance_bands_m, see yaml): σ added to
     # each rotation variance, and σ of a fraction of the range added along the line of sight
-    covariance_floor_deg: tuple[float, ...] = (1.0, 5.0, 8.0)
-    covariance_range_fraction: tuple[float, ...] = (0.125, 0.05, 0.075)
+    covariance_floor_deg: tuple[float, ...] = (10.0, 5.0, 8.0)
+    covariance_range_fraction: tuple[float, ...] = (0.2, 0.05, 0.075)
     covariance_bands_m: tuple[float, ...] = (15.0, 60.0)
     depth_prior_sigma: float = 0.20  # ours, 0 = thesis: relative σ of the boosted-depth prior (depth_prior)
     depth_prior_floor: float = 0.5  # the prior's value far from the boosted depth
