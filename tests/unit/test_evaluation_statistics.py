@@ -111,6 +111,9 @@ def test_unusable_poses_and_times_are_refused_naming_where(tmp_path):
     lost = quat.copy()
     lost[1] = np.nan
     assert np.isnan(score(truth, Poses(truth.stamps_ns, np.zeros((3, 3)), lost))["geodesic"][1])
+    with pytest.raises(ValueError, match=r"none of the estimate's 3 stamps is a ground-truth stamp \(first 15 ns"):
+        score(truth, Poses(truth.stamps_ns + 5, np.zeros((3, 3)), quat))  # a clock 5 ns off
+    assert np.isnan(score(truth, Poses(np.array([20, 35]), np.zeros((2, 3)), quat[:2]))["geodesic"][[0, 2]]).all()
     path = tmp_path / "est.csv"
     path.write_text("stamp_ns,x,y,z,qx,qy,qz,qw,ms\n10,0,0,5,0,0,0,1,12.5\n20,0,0,5,0,0,0,1,slow\n")
     with pytest.raises(ValueError, match=r"est.csv: line 3: ms 'slow' is not a number"):

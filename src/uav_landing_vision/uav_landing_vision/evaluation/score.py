@@ -39,8 +39,13 @@ def _refuse_unusable(poses: Poses, what: str, lost_allowed: bool) -> None:
 
 
 def score(truth: Poses, estimate: Poses) -> dict[str, np.ndarray]:
-    """Per-frame errors (see :func:`pose_errors`) over the ground-truth frames."""
+    """Per-frame errors (see :func:`pose_errors`) over the ground-truth frames. An estimate none of
+    whose stamps is a ground-truth stamp is a ValueError: its clock, not its tracker, is off."""
     est = align(truth, estimate)
+    if len(estimate.stamps_ns) and len(truth.stamps_ns) and not np.isin(estimate.stamps_ns, truth.stamps_ns).any():
+        raise ValueError(f"none of the estimate's {len(estimate.stamps_ns)} stamps is a ground-truth stamp (first "
+                         f"{int(estimate.stamps_ns[0])} ns against {int(truth.stamps_ns[0])} ns): the estimate "
+                         "must carry the stamps of the frames it was made from")
     _refuse_unusable(truth, "ground truth", lost_allowed=False)
     _refuse_unusable(est, "estimate", lost_allowed=True)
     return pose_errors(truth.trans, truth.quat, est.trans, est.quat)
