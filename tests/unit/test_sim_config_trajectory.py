@@ -31,6 +31,7 @@ def test_shipped_scenarios_load(name):
     ("approach: {}\nstart_time_s: -5.0\n", "start_time_s must be in"),
     ("approach: {}\nbackground: {sun_azimuth_deg: .inf}\n", "sun_azimuth_deg and sun_elevation_deg must be finite"),
     ("approach: {}\nbackground: {sun_elevation_deg: .nan}\n", "sun_azimuth_deg and sun_elevation_deg must be finite"),
+    ("approach: {speed_jitter_mps: 1.75}\n", "speed_jitter_mps must be under a quarter of the closing speed"),
 ])
 def test_bad_scenarios_are_clear_errors(tmp_path, text, match):
     path = tmp_path / "bad.yaml"
@@ -122,6 +123,15 @@ def test_smooth_signal_rms_and_smoothness():
     v = sig(t)
     assert np.sqrt(np.mean(v**2)) == pytest.approx(2.0, rel=0.05)
     assert np.abs(np.diff(v)).max() < 2.0 * 2 * np.pi * 0.5 * 0.034 * 2.5
+
+
+def test_a_jittery_approach_still_closes_in_and_reaches_the_net():
+    s = load_scenario("normal")  # closing speed 7 m/s
+    s = replace(s, approach=replace(s.approach, speed_jitter_mps=1.7))
+    for seed in (13, 14, 15, 21, 26):  # seeds whose jitter is slow on the whole: more steps than 7 m/s needs
+        tr = make_trajectory(s, generators(seed))
+        assert np.linalg.norm(tr.uav_pos[-1]) < (7.0 + 3.5 * 1.7) * s.dt_s  # within a step of the net
+        assert np.all(np.diff(np.linalg.norm(tr.uav_pos, axis=1)) < 0)  # never backing away
 
 
 def test_approach_banks_into_its_turns():

@@ -154,6 +154,9 @@ def validate(s: Scenario, where: str = "scenario") -> Scenario:
         need(a.airspeed_mps > s.ship.speed_mps, "approach.airspeed_mps must exceed ship.speed_mps (the UAV must close in)")
         need(0 < a.disturbance_band_hz[0] < a.disturbance_band_hz[1], "approach.disturbance_band_hz must be [low, high] > 0")
         need(a.path_wander_deg >= 0 and a.speed_jitter_mps >= 0, "approach wander/jitter must be non-negative")
+        need(a.speed_jitter_mps < (a.airspeed_mps - s.ship.speed_mps) / 4,
+             "approach.speed_jitter_mps must be under a quarter of the closing speed (airspeed_mps - ship.speed_mps): "
+             "its peaks reach 3.5 times it, and the UAV must keep closing in")
     f = s.single_frame
     if f is not None:
         need(all(d > 0 for d in f.distances_m) and f.distances_m, "single_frame.distances_m must be positive")

@@ -76,6 +76,11 @@ class SmoothSignal:
         t = np.asarray(t, dtype=float)[..., None]
         return np.sum(self.amp * np.sin(2 * np.pi * self.freq * t + self.phase), axis=-1)
 
+    @property
+    def peak(self) -> float:
+        """The most ``|value|`` can reach: at most ``rms·√(2·terms)``."""
+        return float(np.sum(np.abs(self.amp)))
+
 
 def camera_mount(ship: ShipConfig) -> tuple[np.ndarray, np.ndarray]:
     """Rotation (optical → S) and position in S of the camera."""
@@ -144,7 +149,7 @@ def landing_approach(rngs: tuple[np.random.Generator, np.random.Generator], cfg:
     uc = float(u0 @ cam)
     r0 = uc + np.sqrt(uc * uc - cam @ cam + distance0**2)
     closing = cfg.airspeed_mps - ship.speed_mps
-    n = int(np.floor(r0 / (closing * dt))) + 8  # enough steps even with jitter; trimmed below
+    n = int(np.ceil(r0 / ((closing - jitter.peak) * dt))) + 1  # enough steps at the slowest; trimmed below
     t = np.arange(n) * dt
     r = r0 - np.concatenate([[0.0], np.cumsum((closing + jitter(t[:-1])) * dt)])
     keep = r >= 0.0
