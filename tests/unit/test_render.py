@@ -189,6 +189,13 @@ def test_batch_arguments(renderer, poses):
         renderer.silhouettes(poses[0][:3], poses[1][:2])
 
 
+@pytest.mark.parametrize("settings", [{"tile": 4}, {"max_batch": 0}, {"margin": -0.1}, {"margin": float("nan")},
+                                      {"margin": float("inf")}])
+def test_invalid_renderer_settings_are_refused(camera, mesh, settings):
+    with pytest.raises(ValueError, match="invalid renderer settings"):
+        Renderer(camera, mesh, **settings)
+
+
 def test_side_view_is_upright_and_not_mirrored(camera, renderer):
     full = renderer.silhouette_full(side_view_quat(), [0.0, 0.0, 6.0])
     rows, cols = np.nonzero(full)

@@ -52,6 +52,7 @@ def run(particles=(100, 300), tiles=(64, 128), repeats: int = 20, seed: int = 0)
                 "gl_renderer": renderer.gl_renderer,
             }
         )
+        renderer.release()
     return rows
 
 

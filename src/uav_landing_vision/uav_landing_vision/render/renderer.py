@@ -38,7 +38,7 @@ class Renderer:
     """Renders one mesh through one camera; all renderers share the process's GL context."""
 
     def __init__(self, camera, mesh: Mesh, *, tile: int = 64, max_batch: int = 512, margin: float = 0.1):
-        if not 8 <= tile <= 1024 or max_batch < 1 or mesh.triangle_count == 0 or margin < 0:
+        if not 8 <= tile <= 1024 or max_batch < 1 or mesh.triangle_count == 0 or not 0 <= margin < np.inf:
             raise ValueError(f"invalid renderer settings: tile={tile}, max_batch={max_batch}, margin={margin}")
         self.width, self.height = int(camera.width), int(camera.height)
         self.K = np.array(camera.K, dtype=float)
