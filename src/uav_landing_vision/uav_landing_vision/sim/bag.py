@@ -15,7 +15,7 @@ from rosbags.rosbag2 import Reader, ReaderError, StoragePlugin, Writer
 from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
 
-from ..camera import CameraModel, camera_from_info_msg, camera_info_fields, save_camera_info_yaml
+from ..camera import DEFAULT_FRAME_ID, CameraModel, camera_from_info_msg, camera_info_fields, save_camera_info_yaml
 
 IMAGE_TOPIC = "/camera/image_raw"
 INFO_TOPIC = "/camera/camera_info"
@@ -151,7 +151,7 @@ def iter_frames(path, topic: str = IMAGE_TOPIC):
 def read_camera(path, topic: str = INFO_TOPIC) -> CameraModel:
     """The camera of the first camera_info message of a bag."""
     for msg in _topic_messages(path, topic, INFO_TYPES):
-        return camera_from_info_msg(msg, frame_id=msg.header.frame_id or "camera_optical_frame")
+        return camera_from_info_msg(msg, frame_id=msg.header.frame_id or DEFAULT_FRAME_ID)
     raise ValueError(f"{path}: no message on {topic or 'a camera_info topic'}")
 
 
