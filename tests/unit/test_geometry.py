@@ -33,6 +33,15 @@ def test_conjugate_is_inverse(quats):
     np.testing.assert_allclose(g.quat_canonical(ident), np.tile([0, 0, 0, 1.0], (M, 1)), atol=1e-12)
 
 
+def test_canonical_is_one_representative_of_plus_minus_q(quats):
+    half_turns = np.array([[1.0, 0, 0, 0], [0, -1.0, 0, 0], [0, 0.6, -0.8, 0], [-0.6, 0, 0.8, 0]])
+    for q in (quats, half_turns):
+        np.testing.assert_array_equal(g.quat_canonical(q), g.quat_canonical(-q))
+    np.testing.assert_array_equal(g.quat_canonical(half_turns),
+                                  [[1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0.6, -0.8, 0], [0.6, 0, -0.8, 0]])
+    assert (g.quat_canonical(quats)[:, 3] >= 0).all()
+
+
 def test_matrix_round_trip_matches_scipy(quats):
     mats = g.quat_to_matrix(quats)
     np.testing.assert_allclose(mats, Rotation.from_quat(quats).as_matrix(), atol=1e-12)

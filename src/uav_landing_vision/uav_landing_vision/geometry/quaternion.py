@@ -42,9 +42,12 @@ def quat_normalise(q: np.ndarray) -> np.ndarray:
 
 
 def quat_canonical(q: np.ndarray) -> np.ndarray:
-    """The representative of ``±q`` with ``w >= 0`` (DESIGN §3)."""
+    """The representative of ``±q`` with ``w >= 0`` (DESIGN §3); at ``w == 0`` (a half turn) the one
+    whose first non-zero component of ``(x, y, z)`` is positive, so the representative is unique."""
     q = np.asarray(q, dtype=float)
-    return np.where(q[..., 3:4] < 0.0, -q, q)
+    lead = np.take_along_axis(q, np.argmax(q[..., :3] != 0.0, axis=-1)[..., None], axis=-1)
+    flip = (q[..., 3:4] < 0.0) | ((q[..., 3:4] == 0.0) & (lead < 0.0))
+    return np.where(flip, -q, q)
 
 
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:
