@@ -106,7 +106,7 @@ class TrackerConfig:
     rotation_prior_floor: float = 0.5  # the rotation prior's value far from the last estimate's rotation
     rotation_prior_max_m: float = 15.0  # no rotation prior while the last estimate is beyond this depth
     estimate: str = "mean"  # ours (best = thesis), see yaml
-    rotation_window: int = 2  # ours, 1 = thesis: frames whose estimated rotations are averaged for output
+    rotation_window: int = 4  # ours, 1 = thesis: frames whose estimated rotations are averaged for output
     rotation_window_max_turn_deg: float = 30.0  # a larger turn from the last estimate restarts the window
     refine: RotationRefinementConfig = field(
         default_factory=lambda: RotationRefinementConfig(candidates=96, sigma_deg=(4.0, 1.5), align_px=0.5))  # ours
