@@ -19,8 +19,8 @@ from uav_landing_vision.tracking.upf import load_tracker_config
 
 REPO = Path(__file__).parents[2]
 FRAMES = 60
-# Measured with the shipped models: medians 0.89 m and 3.76°, no frame lost (0.72 m and 5.98°
-# before the UAV banked into its turns; 4.70 m and 12.1° with the previous detector, before
+# Measured with the shipped models: medians 0.89 m and 3.84°, no frame lost (3.76° with the
+# two-frame rotation window; 0.72 m and 5.98° before the UAV banked into its turns; 4.70 m and 12.1° with the previous detector, before
 # boosting grew the ROIs). The bounds leave a margin for
 # another machine's float rounding and catch a pipeline that lost the UAV.
 TRANSLATION_MEDIAN_M = 1.5
@@ -61,6 +61,9 @@ def graph_run(landing, tmp_path_factory, ros_domain_id):
            # shipped 3 s for the processes' DDS matching: a loaded CI machine.
            "--param", f"bag_player:ready_topics={ready_topics_parameter()}",
            "--param", "bag_player:ready_settle_s=6.0",
+           # The core never tracks a frame by prediction while its box is coming; on a loaded machine
+           # the shipped 1 s can pass before the hypotheses arrive. Still below the 10 s ack timeout.
+           "--param", "tracker:node.hypotheses_timeout_s=8.0",
            "--param", f"evaluator:out_dir={report}",
            "--param", f"evaluator:variant={tracker.variant}N{tracker.iterations}"]
     log = out / "graph.log"
