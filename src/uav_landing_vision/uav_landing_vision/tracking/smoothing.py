@@ -2,11 +2,12 @@
 
 From one frame to the next the tracker's rotation estimate moves by more than 5° in over half
 of the frames of the simulated landings, while the airframe turns by about 1° (at most ~5°).
-That jitter is estimation noise, and the mean of the last two estimates has a lower error than
-the last one alone (docs/tracking.md, "Rotation window"). An estimate that turns by more than
-``max_turn_deg`` from the last one starts the window afresh: averaging across such a jump (a
-whole-set flip, a re-acquired track) would publish a rotation that no frame estimated. Positions
-are not averaged: their errors are biases that persist over many frames, not jitter.
+That jitter is estimation noise, and the mean of the last few estimates (four shipped) has a
+lower error than the last one alone (docs/tracking.md, "Rotation window"). An estimate that
+turns by more than ``max_turn_deg`` from the last one starts the window afresh: averaging across
+such a jump (a whole-set flip, a re-acquired track) would publish a rotation that no frame
+estimated. Positions are not averaged: their errors are biases that persist over many frames,
+not jitter.
 """
 
 from collections import deque
