@@ -155,6 +155,9 @@ class TrackerNode(LandingNode):
         """An entry that will not be completed: its image is tracked by prediction."""
         if "image" in entry.items:
             self.counters["without_hypotheses"] += 1
+            self.get_logger().warning(
+                f"frame stamped {entry.stamp_ns} ns tracked by prediction: no hypotheses within "
+                f"{self.node_config.hypotheses_timeout_s:g} s or before the next frame's", throttle_duration_sec=1.0)
             self._track(*entry.items["image"], None)
         else:
             self.drop(f"hypotheses stamped {entry.stamp_ns} ns have no image")
