@@ -78,6 +78,8 @@ def test_report_when_the_frame_count_is_reached_lost_frames_counted(ros, tmp_pat
     assert c4["rotation_deg"]["mae"] == pytest.approx(0.0, abs=1e-3)
     tables = (out / "tables.txt").read_text()
     assert "seq: translation error (m)" in tables
+    by_depth = tables.split("median error by true depth")[1].split("\n\n")[0].splitlines()
+    assert by_depth[-1].split()[0] == "all" and by_depth[-1].endswith("0.30 | 0.00 (4)")
     # 95 % region of 3 dof: NEES <= 7.81; position errors 0.1, 0.2 (inside) and 0.4, 0.5 m (outside) at σ 0.1 m
     coverage = {line.split()[0]: line.split()[-3:] for line in tables.split("95 % region")[1].splitlines()[2:]}
     assert coverage["0-8"] == ["0/2", "|", "2/2"] and coverage["8-15"] == ["2/2", "|", "2/2"]

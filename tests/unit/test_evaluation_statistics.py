@@ -10,6 +10,7 @@ from uav_landing_vision.evaluation import (
     SummaryError,
     align,
     error_statistics,
+    format_errors_by_depth,
     format_table,
     load_summary,
     make_summary,
@@ -160,3 +161,16 @@ def test_tables_csv_and_plots(tmp_path):
         assert (tmp_path / name).stat().st_size > 0
     header = (tmp_path / "translation_error.csv").read_text().splitlines()[0]
     assert header.split(",")[:3] == ["statistic", "C4N2 Euclidean", "C4N2 X"]
+
+
+def test_median_errors_by_depth_hand_made():
+    depth = np.array([5.0, 6.0, 7.0, 20.0, 25.0, 70.0])
+    a = {"euclidean": np.array([0.1, 0.3, 0.2, 1.0, np.nan, 4.0]),
+         "geodesic": np.array([1.0, 3.0, 2.0, 5.0, 7.0, 9.0])}  # frame 4 lost (no position)
+    b = {"euclidean": np.full(6, np.nan), "geodesic": np.full(6, np.nan)}  # lost throughout
+    text = format_errors_by_depth({"C4N2": a, "C3N0": b}, depth, "seq", bins=(0.0, 8.0, 60.0, np.inf))
+    rows = {line[:16].strip(): line[16:] for line in text.splitlines()[2:]}
+    assert list(rows) == ["0-8 m", "8-60 m", "60+ m", "all"]
+    assert rows["0-8 m"].split("- (0)")[0].strip() == "0.20 | 2.00 (3)"
+    assert "1.00 | 5.00 (1)" in rows["8-60 m"] and "4.00 | 9.00 (1)" in rows["60+ m"]
+    assert "0.30 | 3.00 (5)" in rows["all"] and rows["all"].rstrip().endswith("- (0)")

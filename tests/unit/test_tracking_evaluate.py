@@ -68,6 +68,8 @@ def test_oracle_run_is_accurate_and_labelled(bag, result):
     cov = result.covariances["C4N2"]
     assert cov.shape == (FRAMES, 6, 6) and np.all(np.isfinite(cov))
     np.testing.assert_array_equal(result.truth[0], read_poses(bag).trans[:FRAMES])
+    by_depth = text.split("median error by true depth")[1].splitlines()
+    assert next(r for r in by_depth if r.startswith("all")).rstrip().endswith(f"({FRAMES})")
     coverage = text.split("95 % region")[1].splitlines()
     assert coverage[-1].split()[0] == "all" and f"/{FRAMES} |" in coverage[-1]
 

@@ -2,6 +2,7 @@
 
 from .report import (
     SummaryError,
+    format_errors_by_depth,
     format_table,
     load_summary,
     make_summary,
@@ -23,6 +24,7 @@ __all__ = [
     "SummaryError",
     "align",
     "error_statistics",
+    "format_errors_by_depth",
     "format_table",
     "load_summary",
     "make_summary",

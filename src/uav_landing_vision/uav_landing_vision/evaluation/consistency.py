@@ -13,6 +13,11 @@ from scipy.stats import chi2
 DEPTH_BINS_M = (0.0, 8.0, 15.0, 30.0, 60.0, np.inf)
 
 
+def depth_bin_label(lo: float | None, hi: float | None) -> str:
+    """A table row's name for the depths [lo, hi) in m; ``None`` bounds: all frames."""
+    return "all" if lo is None else f"{lo:g}+ m" if np.isinf(hi) else f"{lo:g}-{hi:g} m"
+
+
 def error_vectors(t_true, q_true, t_est, q_est) -> np.ndarray:
     """``(F, 6)``: position error t̂ − t and rotation error log(q_true ⊗ q̂⁻¹) per frame, in the
     order of a ROS pose covariance; NaN rows where there is no estimate."""
@@ -77,8 +82,7 @@ def format_coverage(coverage: dict[str, list[dict]], title: str) -> str:
     lines = [f"{title}: errors inside the published covariance's 95 % region (position | rotation)",
              f"{'true depth':<16}" + "".join(f"{n:>{width}}" for n in names)]
     for i, row in enumerate(coverage[names[0]]):
-        lo, hi = row["depth_m"] or (None, None)
-        label = "all" if lo is None else f"{lo:g}+ m" if np.isinf(hi) else f"{lo:g}-{hi:g} m"
+        label = depth_bin_label(*(row["depth_m"] or (None, None)))
         cells = (f"{c['position']}/{c['frames']} | {c['rotation']}/{c['frames']}" for c in (coverage[n][i] for n in names))
         lines.append(f"{label:<16}" + "".join(f"{c:>{width}}" for c in cells))
     return "\n".join(lines)

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .consistency import DEPTH_BINS_M, depth_bin_label
 from .statistics import ROTATION_COLUMNS, ROW_NAMES, STAT_KEYS, TRANSLATION_COLUMNS, error_statistics
 
 AXIS_LABELS = {"euclidean": "Euclidean", "x": "X", "y": "Y", "z": "Z",
@@ -40,6 +41,29 @@ def format_table(stats_by_column: dict[str, dict], title: str, digits: int = 2) 
     for key in STAT_KEYS:
         cells = "".join(f"{stats_by_column[n][key]:>{width}.{digits}f}" for n in names)
         lines.append(f"{ROW_NAMES[key]:<16}{cells}")
+    return "\n".join(lines)
+
+
+def format_errors_by_depth(errors_by_variant: dict[str, dict[str, np.ndarray]], depth, title: str,
+                           bins=DEPTH_BINS_M) -> str:
+    """Ours (the thesis pools the whole approach): per bin of true ``depth`` (edges in m) and for
+    all frames, each variant's median Euclidean translation (m) and geodesic rotation (deg)
+    errors over the frames it has an estimate for, and how many those are."""
+    depth = np.asarray(depth, float)
+    names = list(errors_by_variant)
+    width = max(24, *(len(n) + 2 for n in names))
+    lines = [f"{title}: median error by true depth (translation m | rotation deg, frames)",
+             f"{'true depth':<16}" + "".join(f"{n:>{width}}" for n in names)]
+    for lo, hi in list(zip(bins[:-1], bins[1:])) + [(None, None)]:
+        cells = []
+        for name in names:
+            trans, rot = (np.asarray(errors_by_variant[name][c], float) for c in ("euclidean", "geodesic"))
+            sel = np.isfinite(trans) & np.isfinite(rot)
+            if lo is not None:
+                sel &= (depth >= lo) & (depth < hi)
+            cell = f"{np.median(trans[sel]):.2f} | {np.median(rot[sel]):.2f} ({sel.sum()})" if sel.any() else "- (0)"
+            cells.append(cell)
+        lines.append(f"{depth_bin_label(lo, hi):<16}" + "".join(f"{c:>{width}}" for c in cells))
     return "\n".join(lines)
 
 

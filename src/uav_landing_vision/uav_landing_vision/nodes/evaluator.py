@@ -29,7 +29,15 @@ import rclpy
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from rclpy.executors import ExternalShutdownException
 
-from ..evaluation import align, make_summary, pose_errors, save_summary, variant_summary, write_report
+from ..evaluation import (
+    align,
+    format_errors_by_depth,
+    make_summary,
+    pose_errors,
+    save_summary,
+    variant_summary,
+    write_report,
+)
 from ..evaluation.consistency import coverage_by_depth, format_coverage
 from ..sim import Poses, write_pose_csv
 from .base import LandingNode, run_node, stamp_ns
@@ -109,8 +117,8 @@ class EvaluatorNode(LandingNode):
         est = align(truth, estimates)
         errors = pose_errors(truth.trans, truth.quat, est.trans, est.quat)
         out = Path(cfg.out_dir)
-        coverage = self._coverage(truth, est)
-        text = write_report(out, cfg.sequence, {cfg.variant: errors}, appendix=coverage)
+        by_depth = format_errors_by_depth({cfg.variant: errors}, truth.trans[:, 2], cfg.sequence)
+        text = write_report(out, cfg.sequence, {cfg.variant: errors}, appendix=f"{by_depth}\n\n{self._coverage(truth, est)}")
         save_summary(out / "summary.json", make_summary(cfg.sequence, len(truth.stamps_ns), {cfg.variant: variant_summary(errors)}))
         write_pose_csv(out / "estimates.csv", estimates)
         matched = int(np.isfinite(errors["euclidean"]).sum())
