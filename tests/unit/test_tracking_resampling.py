@@ -220,6 +220,7 @@ def test_fixed_size_drops_copies_uniformly_and_fills_systematically():
     np.testing.assert_array_equal(fixed_size(few, w, rng, 5), [0, 0, 1, 2, 2])
 
 
+@pytest.mark.filterwarnings("error")  # the overflow is handled, not warned about
 def test_weights_whose_sum_overflows_still_resample():
     idx = resample("systematic", np.full(3, 1e308), np.random.default_rng(0)).indices
     np.testing.assert_array_equal(idx, [0, 1, 2])

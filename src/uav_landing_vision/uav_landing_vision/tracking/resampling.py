@@ -27,7 +27,8 @@ def _normalise(weights) -> np.ndarray:
         raise ValueError(f"resampling: weights must be a non-empty 1-D array, got shape {w.shape}")
     if not np.all(np.isfinite(w)) or np.any(w < 0.0):
         raise ValueError("resampling: weights must be finite and non-negative")
-    total = w.sum()
+    with np.errstate(over="ignore"):  # handled below
+        total = w.sum()
     if not np.isfinite(total):  # each weight finite, their sum beyond float range
         w = w / w.max()
         total = w.sum()
