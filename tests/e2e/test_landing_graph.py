@@ -20,8 +20,8 @@ from uav_landing_vision.tracking.upf import load_tracker_config
 REPO = Path(__file__).parents[2]
 FRAMES = 60
 # Measured with the shipped models: medians 0.89 m and 3.84°, no frame lost (3.76° with the
-# two-frame rotation window; 0.72 m and 5.98° before the UAV banked into its turns; 4.70 m and 12.1° with the previous detector, before
-# boosting grew the ROIs). The bounds leave a margin for
+# two-frame rotation window; 0.72 m and 5.98° before the UAV banked into its turns; 4.70 m and
+# 12.1° with the previous detector, before boosting grew the ROIs). The bounds leave a margin for
 # another machine's float rounding and catch a pipeline that lost the UAV.
 TRANSLATION_MEDIAN_M = 1.5
 ROTATION_MEDIAN_DEG = 9.0

@@ -13,9 +13,20 @@ from scipy.stats import chi2
 DEPTH_BINS_M = (0.0, 8.0, 15.0, 30.0, 60.0, np.inf)
 
 
-def depth_bin_label(lo: float | None, hi: float | None) -> str:
-    """A table row's name for the depths [lo, hi) in m; ``None`` bounds: all frames."""
-    return "all" if lo is None else f"{lo:g}+ m" if np.isinf(hi) else f"{lo:g}-{hi:g} m"
+def depth_bins(depth, bins=DEPTH_BINS_M) -> list[tuple[tuple[float, float] | None, np.ndarray]]:
+    """Each bin of ``depth`` (``bins``: edges in m), then all frames: the bin ``(lo, hi)``, or
+    None for all, and the mask of its frames (depths in [lo, hi))."""
+    depth = np.asarray(depth, float)
+    return [((float(lo), float(hi)), (depth >= lo) & (depth < hi)) for lo, hi in zip(bins[:-1], bins[1:])] + [
+        (None, np.ones(depth.shape, bool))]
+
+
+def depth_bin_label(depth_m: tuple[float, float] | None) -> str:
+    """A table row's name for a bin of :func:`depth_bins`."""
+    if depth_m is None:
+        return "all"
+    lo, hi = depth_m
+    return f"{lo:g}+ m" if np.isinf(hi) else f"{lo:g}-{hi:g} m"
 
 
 def error_vectors(t_true, q_true, t_est, q_est) -> np.ndarray:
@@ -64,14 +75,9 @@ def coverage_by_depth(t_true, q_true, t_est, q_est, covariances, bins=DEPTH_BINS
     d_pos, d_rot = nees(err[:, :3], cov[:, :3, :3]), nees(err[:, 3:], cov[:, 3:, 3:])
     posed = np.isfinite(d_pos) & np.isfinite(d_rot)
     inside_pos, inside_rot = posed & (d_pos <= limit), posed & (d_rot <= limit)
-    depth = np.asarray(t_true, float)[:, 2]
-    edges = list(zip(bins[:-1], bins[1:])) + [(None, None)]
-    rows = []
-    for lo, hi in edges:
-        sel = posed if lo is None else posed & (depth >= lo) & (depth < hi)
-        rows.append({"depth_m": None if lo is None else (float(lo), float(hi)), "frames": int(sel.sum()),
-                     "position": int((inside_pos & sel).sum()), "rotation": int((inside_rot & sel).sum())})
-    return rows
+    return [{"depth_m": depth_m, "frames": int((posed & sel).sum()), "position": int((inside_pos & sel).sum()),
+             "rotation": int((inside_rot & sel).sum())}
+            for depth_m, sel in depth_bins(np.asarray(t_true, float)[:, 2], bins)]
 
 
 def format_coverage(coverage: dict[str, list[dict]], title: str) -> str:
@@ -82,7 +88,7 @@ def format_coverage(coverage: dict[str, list[dict]], title: str) -> str:
     lines = [f"{title}: errors inside the published covariance's 95 % region (position | rotation)",
              f"{'true depth':<16}" + "".join(f"{n:>{width}}" for n in names)]
     for i, row in enumerate(coverage[names[0]]):
-        label = depth_bin_label(*(row["depth_m"] or (None, None)))
+        label = depth_bin_label(row["depth_m"])
         cells = (f"{c['position']}/{c['frames']} | {c['rotation']}/{c['frames']}" for c in (coverage[n][i] for n in names))
         lines.append(f"{label:<16}" + "".join(f"{c:>{width}}" for c in cells))
     return "\n".join(lines)

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .consistency import DEPTH_BINS_M, depth_bin_label
+from .consistency import DEPTH_BINS_M, depth_bin_label, depth_bins
 from .statistics import ROTATION_COLUMNS, ROW_NAMES, STAT_KEYS, TRANSLATION_COLUMNS, error_statistics
 
 AXIS_LABELS = {"euclidean": "Euclidean", "x": "X", "y": "Y", "z": "Z",
@@ -49,21 +49,17 @@ def format_errors_by_depth(errors_by_variant: dict[str, dict[str, np.ndarray]], 
     """Ours (the thesis pools the whole approach): per bin of true ``depth`` (edges in m) and for
     all frames, each variant's median Euclidean translation (m) and geodesic rotation (deg)
     errors over the frames it has an estimate for, and how many those are."""
-    depth = np.asarray(depth, float)
     names = list(errors_by_variant)
     width = max(24, *(len(n) + 2 for n in names))
     lines = [f"{title}: median error by true depth (translation m | rotation deg, frames)",
              f"{'true depth':<16}" + "".join(f"{n:>{width}}" for n in names)]
-    for lo, hi in list(zip(bins[:-1], bins[1:])) + [(None, None)]:
+    errors = [(np.asarray(e["euclidean"], float), np.asarray(e["geodesic"], float)) for e in errors_by_variant.values()]
+    for depth_m, in_bin in depth_bins(depth, bins):
         cells = []
-        for name in names:
-            trans, rot = (np.asarray(errors_by_variant[name][c], float) for c in ("euclidean", "geodesic"))
-            sel = np.isfinite(trans) & np.isfinite(rot)
-            if lo is not None:
-                sel &= (depth >= lo) & (depth < hi)
-            cell = f"{np.median(trans[sel]):.2f} | {np.median(rot[sel]):.2f} ({sel.sum()})" if sel.any() else "- (0)"
-            cells.append(cell)
-        lines.append(f"{depth_bin_label(lo, hi):<16}" + "".join(f"{c:>{width}}" for c in cells))
+        for trans, rot in errors:
+            sel = in_bin & np.isfinite(trans) & np.isfinite(rot)
+            cells.append(f"{np.median(trans[sel]):.2f} | {np.median(rot[sel]):.2f} ({sel.sum()})" if sel.any() else "- (0)")
+        lines.append(f"{depth_bin_label(depth_m):<16}" + "".join(f"{c:>{width}}" for c in cells))
     return "\n".join(lines)
 
 
