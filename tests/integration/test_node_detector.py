@@ -12,9 +12,12 @@ from test_node_common import camera_info_msg, image_msg, rgb_frame, ros  # noqa:
 from uav_landing_msgs.msg import DetectionArray
 from uav_landing_vision.camera import CameraModel
 from uav_landing_vision.config import ConfigError
+from uav_landing_vision.detection.track_box import grow_roi
+from uav_landing_vision.model import fixed_wing_mesh
 from uav_landing_vision.nodes import detector as detector_module
 from uav_landing_vision.nodes.detector import DetectorNode
 from uav_landing_vision.nodes.qos import IMAGE_QOS, RELIABLE_QOS
+from uav_landing_vision.render.boxes import projected_roi
 
 PARAMS = Path(__file__).parents[2] / "config" / "detector.yaml"
 CAMERA = CameraModel(96, 64, [[80.0, 0, 48.0], [0, 80.0, 32.0], [0, 0, 1]])
@@ -150,6 +153,33 @@ def test_search_window_from_the_last_pose(ros, model):
     assert "uav/pose rejected: pose quaternion is not a finite unit" in rig.node.last_error
 
 
+def test_track_box_where_the_network_finds_nothing(ros, model):
+    """An untrained network scores every cell near 0.01, so at 0.99 it finds nothing: with a
+    recent pose the node publishes that pose's grown box with score 0, at most max_frames times
+    in a row."""
+    rig = Rig(ros, model, Parameter("score_threshold", value=0.99), Parameter("track_box.max_frames", value=2))
+    info_pub = ros.probe.create_publisher(CameraInfo, "camera/camera_info_rect", IMAGE_QOS)
+    pose_pub = ros.probe.create_publisher(PoseWithCovarianceStamped, "uav/pose", RELIABLE_QOS)
+    assert ros.spin_until(lambda: info_pub.get_subscription_count() and pose_pub.get_subscription_count())
+    first = image_msg(rgb_frame(CAMERA, 1), "rgb8", sec=5)
+    assert rig.send(first).detections == []  # no pose yet
+    info_pub.publish(camera_info_msg(CAMERA, sec=5))
+    pose = PoseWithCovarianceStamped(header=first.header)
+    pose.pose.pose.position.z, pose.pose.pose.orientation.w = 8.0, 1.0
+    pose_pub.publish(pose)
+    assert ros.spin_until(lambda: rig.node._calibration.camera is not None and rig.node._pose is not None)
+    expected = grow_roi(projected_roi(CAMERA, fixed_wing_mesh("high").vertices, [0, 0, 0, 1], [0, 0, 8.0]),
+                        rig.node._track_box.config.grow, CAMERA.width, CAMERA.height)
+    for i in range(3):
+        out = rig.send(image_msg(rgb_frame(CAMERA, 2 + i), "rgb8", sec=5, nanosec=(i + 1) * 33_000_000))
+        if i < 2:
+            assert [(d.roi.x_offset, d.roi.y_offset, d.roi.width, d.roi.height, d.score) for d in out.detections] == [
+                (*expected, 0.0)]
+        else:
+            assert out.detections == []  # max_frames reached
+    assert rig.node.counters["track_boxes"] == 2 and rig.node.counters["detections"] == 0
+
+
 @pytest.mark.parametrize(
     "override, message",
     [
@@ -157,6 +187,7 @@ def test_search_window_from_the_last_pose(ros, model):
         (Parameter("node.window_max_age_s", value=-1.0), "window_max_age_s must be > 0"),
         (Parameter("node.search_window", value="on"), "node.search_window: expected bool"),
         (Parameter("stride", value=8), r"unknown key\(s\) \['stride'\]"),
+        (Parameter("track_box.max_frames", value=0), "max_frames must be at least 1"),
     ],
 )
 def test_bad_parameters_fail_start_up(ros, override, message):

@@ -22,7 +22,7 @@ from uav_landing_vision.nodes.base import stamp_ns
 from uav_landing_vision.nodes.pose_boosting import PoseBoostingNode
 from uav_landing_vision.nodes.qos import IMAGE_QOS, RELIABLE_QOS
 from uav_landing_vision.render import Renderer
-from uav_landing_vision.tracking.evaluate import oracle_roi
+from uav_landing_vision.render.boxes import projected_roi
 
 PARAMS = Path(__file__).parents[2] / "config" / "pose_boosting.yaml"
 CAMERA = CameraModel(320, 240, [[280.0, 0, 160.0], [0, 280.0, 120.0], [0, 0, 1]])
@@ -47,7 +47,7 @@ def scene_frame(k: int) -> np.ndarray:
 
 
 def true_roi(k: int) -> tuple[int, int, int, int]:
-    return oracle_roi(CAMERA, fixed_wing_mesh("high").vertices, TRUE_QUAT, true_position(k))
+    return projected_roi(CAMERA, fixed_wing_mesh("high").vertices, TRUE_QUAT, true_position(k))
 
 
 @pytest.fixture(scope="session")

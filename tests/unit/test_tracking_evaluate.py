@@ -12,13 +12,13 @@ from uav_landing_vision import resources
 from uav_landing_vision.cli import main
 from uav_landing_vision.evaluation import load_summary
 from uav_landing_vision.model import fixed_wing_mesh
+from uav_landing_vision.render.boxes import projected_roi
 from uav_landing_vision.resources import config_path
 from uav_landing_vision.sim import load_scenario, read_camera, read_poses, simulate
 from uav_landing_vision.tracking.evaluate import (
     EvaluationError,
     evaluate_bag,
     format_results,
-    oracle_roi,
     parse_variants,
     summary,
 )
@@ -113,6 +113,35 @@ def test_detector_source_without_a_model_fails_clearly(bag, monkeypatch):
         main(["evaluate", "--bag", str(bag), "--frames", "2", "--variants", "C4N2"])
 
 
+def test_frames_without_a_detection_are_boosted_from_the_last_pose(bag, monkeypatch):
+    """Where the detector finds nothing, boosting gets the grown box of the variant's last
+    estimate, as the detector node's track box gives it (shipped ``track_box`` settings)."""
+    import importlib
+
+    from uav_landing_vision.boosting import PoseHypothesisGenerator
+    from uav_landing_vision.detection.track_box import TrackBoxConfig, grow_roi
+
+    evaluate = importlib.import_module("uav_landing_vision.tracking.evaluate")
+    camera, truth, vertices = read_camera(bag).rectified(), read_poses(bag), fixed_wing_mesh("high").vertices
+    found = 4
+    monkeypatch.setattr(evaluate, "detector_rois", lambda cam: lambda frame, k: (
+        projected_roi(camera, vertices, truth.quat[k], truth.trans[k]) if k < found else None))
+    boxes, generate = [], PoseHypothesisGenerator.generate
+
+    def recorded(self, frame, roi, *args, **kwargs):
+        boxes.append(tuple(roi))
+        return generate(self, frame, roi, *args, **kwargs)
+
+    monkeypatch.setattr(PoseHypothesisGenerator, "generate", recorded)
+    result = evaluate.evaluate_bag(bag, ["C4N2"], particles=30, frames=8, progress=False)
+    config = evaluate.shipped_config(TrackBoxConfig, "detector", "track_box")
+    assert config.enabled and config.max_frames >= 8 - found
+    position, quat = result.estimates["C4N2"]
+    expected = [grow_roi(projected_roi(camera, vertices, quat[k - 1], position[k - 1]), config.grow, camera.width,
+                         camera.height) for k in range(found, 8)]
+    assert boxes[found:] == expected
+
+
 def test_cli_writes_json_and_plots(bag, tmp_path, capsys):
     out = tmp_path / "summary.json"
     assert main(["evaluate", "--bag", str(bag), "--roi-source", "oracle", "--frames", "3", "--variants", "C1N0,C3N1",
@@ -156,12 +185,12 @@ def test_variant_lists():
         main(["evaluate", "--bag", "nowhere", "--variants", "C4N2,C0N1"])
 
 
-def test_oracle_roi_holds_the_projected_model(bag):
+def test_projected_roi_holds_the_projected_model(bag):
     camera = read_camera(bag).rectified()
     truth = read_poses(bag)
     vertices = fixed_wing_mesh("high").vertices
-    x, y, w, h = oracle_roi(camera, vertices, truth.quat[0], truth.trans[0])
+    x, y, w, h = projected_roi(camera, vertices, truth.quat[0], truth.trans[0])
     uv = camera.project_pinhole(truth.trans[0] + vertices @ Rotation.from_quat(truth.quat[0]).as_matrix().T)
     assert np.all((uv[:, 0] >= x) & (uv[:, 0] <= x + w) & (uv[:, 1] >= y) & (uv[:, 1] <= y + h))
     assert w < 0.5 * camera.width
-    assert oracle_roi(camera, vertices, truth.quat[0], -truth.trans[0]) is None  # behind the camera
+    assert projected_roi(camera, vertices, truth.quat[0], -truth.trans[0]) is None  # behind the camera

@@ -9,6 +9,9 @@ at the top level, the node's own under ``node``:
   with ``camera/camera_info_rect``; window by ``detection.detector.search_window``), and the
   full frame when that window holds nothing or the pose is older than ``node.window_max_age_s``
   (by stamps) or newer than the image.
+- ``track_box`` (``detection.track_box.TrackBoxConfig``): in a frame where the network finds
+  nothing, publish instead the box of the last tracked pose, grown, with score 0 — a region for
+  pose boosting, not a detection; bounded in pose age and in consecutive frames.
 
 A missing or unusable model fails start-up (exit code 2) with the commands that make it;
 detections are never made up. Unusable images and poses are logged, counted and dropped.
@@ -23,8 +26,9 @@ from uav_landing_msgs.msg import Detection, DetectionArray
 
 from ..config import ConfigError
 from ..detection.detector import Detector, DetectorConfig, search_window
+from ..detection.track_box import TrackBox, TrackBoxConfig
 from ..model import fixed_wing_mesh
-from ..tracking.evaluate import oracle_roi
+from ..render.boxes import projected_roi
 from .base import LandingNode, run_node, stamp_ns
 from .calibration import Calibration
 from .image import ImageError, image_to_rgb
@@ -52,19 +56,21 @@ class DetectorNodeConfig:
 class DetectorNode(LandingNode):
     def __init__(self, **kwargs):
         super().__init__("detector", **kwargs)
-        self.config = self.load_config(DetectorConfig, exclude=("node",))
+        self.config = self.load_config(DetectorConfig, exclude=("node", "track_box"))
         self.node_config = self.load_config(DetectorNodeConfig, group="node")
+        self._vertices = fixed_wing_mesh("high").vertices
+        self._track_box = TrackBox(self.load_config(TrackBoxConfig, group="track_box"), self._vertices)
         self._detector = _load_detector(self.config)
         self._pub = self.create_publisher(DetectionArray, "uav/detections", RELIABLE_QOS)
         self.create_subscription(Image, "camera/image_rect", self._on_image, IMAGE_QOS)
         self._calibration, self._pose = Calibration(), None
-        if self.node_config.search_window:
-            self._vertices = fixed_wing_mesh("high").vertices
+        if self.node_config.search_window or self._track_box.config.enabled:
             self.create_subscription(CameraInfo, "camera/camera_info_rect", self._on_camera_info, IMAGE_QOS)
             self.create_subscription(PoseWithCovarianceStamped, "uav/pose", self._on_pose, RELIABLE_QOS)
         self.get_logger().info(
             f"model {self.config.model}: input {self._detector.input_size}, strides {self._detector.strides}, "
-            f"search window {'on' if self.node_config.search_window else 'off'}"
+            f"search window {'on' if self.node_config.search_window else 'off'}, "
+            f"track box {'on' if self._track_box.config.enabled else 'off'}"
         )
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
@@ -77,6 +83,7 @@ class DetectorNode(LandingNode):
             self.drop(f"uav/pose rejected: {exc}")
             return
         self._pose = (stamp_ns(msg.header.stamp), position, quat)
+        self._track_box.set_pose(*self._pose)
 
     def _window(self, image_stamp_ns: int, width: int, height: int):
         """The search window around the last pose, or None (full frame)."""
@@ -86,7 +93,7 @@ class DetectorNode(LandingNode):
         age_s = (image_stamp_ns - pose[0]) * 1e-9
         if not 0.0 <= age_s <= self.node_config.window_max_age_s:
             return None
-        roi = oracle_roi(camera, self._vertices, pose[2], pose[1])
+        roi = projected_roi(camera, self._vertices, pose[2], pose[1])
         if roi is None:
             return None
         return search_window(roi, width, height, self.config.window_grow, self.config.window_min_px)
@@ -104,14 +111,26 @@ class DetectorNode(LandingNode):
             self.counters["windowed"] += 1
             if not len(dets.scores):
                 dets = self._detector.detect(frame)
-        rois = dets.rois(msg.width, msg.height)
+        rois, scores = dets.rois(msg.width, msg.height), dets.scores
+        if len(scores):
+            self._track_box.detected()
+        else:
+            rois, scores = self._track_box_roi(stamp_ns(msg.header.stamp), msg.width, msg.height), [0.0]
         out = DetectionArray(header=msg.header, detections=[
             Detection(roi=RegionOfInterest(x_offset=int(x), y_offset=int(y), width=int(w), height=int(h)), score=float(s))
-            for (x, y, w, h), s in zip(rois, dets.scores)
+            for (x, y, w, h), s in zip(rois, scores)
         ])
         self._pub.publish(out)
         self.counters["published"] += 1
-        self.counters["detections"] += len(out.detections)
+        self.counters["detections" if len(dets.scores) else "track_boxes"] += len(out.detections)
+
+    def _track_box_roi(self, image_stamp_ns: int, width: int, height: int) -> list:
+        """[the track box] for a frame without detections, or []."""
+        camera = self._calibration.camera
+        if camera is None or (camera.width, camera.height) != (width, height):
+            return []
+        roi = self._track_box.roi(camera, image_stamp_ns)
+        return [] if roi is None else [roi]
 
 
 def _load_detector(config: DetectorConfig) -> Detector:

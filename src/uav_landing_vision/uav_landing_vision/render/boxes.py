@@ -43,6 +43,20 @@ def project_points(K: np.ndarray, rot: np.ndarray, trans: np.ndarray, points: np
     return z, np.stack([u, v], axis=-1)
 
 
+def projected_roi(camera, vertices: np.ndarray, quat, trans):
+    """ROI ``(x, y, w, h)`` in whole pixels of the model's vertices projected at one pose by
+    ``camera`` (its ``K``, ``width`` and ``height``), clipped to the image; None when a vertex is
+    behind the camera or the box is outside the image."""
+    rot, t = pose_matrices(np.asarray(quat, float)[None], np.asarray(trans, float)[None])
+    z, uv = project_points(camera.K, rot, t, np.asarray(vertices, float))
+    if not np.all(z > 0):
+        return None
+    lo, hi = uv[0].min(axis=0), uv[0].max(axis=0)
+    x0, y0 = np.floor(np.maximum(lo, 0)).astype(int)
+    x1, y1 = np.ceil(np.minimum(hi, [camera.width, camera.height])).astype(int)
+    return None if x1 <= x0 or y1 <= y0 else (int(x0), int(y0), int(x1 - x0), int(y1 - y0))
+
+
 def tile_boxes(K, width: int, height: int, rot, trans, hull: np.ndarray, margin: float):
     """Square boxes ``(M,4)`` and visibility ``(M,)``.
 

@@ -7,6 +7,8 @@ hypotheses (each takes the first M or M − M0 of them, best first, as it needs)
 
 - ``detector`` (default): the project's ONNX detector (§4.2) on the full frame, best box. If
   the detector module or its model is missing this fails; it never falls back to the oracle.
+  Where it finds nothing, each variant gets the box of its own last pose as the detector node
+  gives it (``detector.yaml`` ``track_box``, :mod:`..detection.track_box`), boosted for it alone.
 - ``oracle``: the box of the model projected at the ground-truth pose (boosting grows every
   ROI alike, ``pose_boosting.yaml`` ``roi_margin``/``roi_pad_px``). Not a measurement:
   results with it say so in the table header and the JSON ``sequence``.
@@ -40,29 +42,19 @@ def parse_variants(text: str) -> list[str]:
     return list(dict.fromkeys(names))
 
 
-def oracle_roi(camera, vertices: np.ndarray, quat, trans):
-    """ROI ``(x, y, w, h)`` of the model's vertices projected at the pose (rectified camera),
-    out to whole pixels and clipped; None if not in view."""
-    from ..render.boxes import pose_matrices, project_points
-
-    rot, t = pose_matrices(np.asarray(quat, float)[None], np.asarray(trans, float)[None])
-    z, uv = project_points(camera.K, rot, t, vertices.astype(float))
-    if not np.all(z > 0):
-        return None
-    lo, hi = uv[0].min(axis=0), uv[0].max(axis=0)
-    x0, y0 = np.floor(np.maximum(lo, 0)).astype(int)
-    x1, y1 = np.ceil(np.minimum(hi, [camera.width, camera.height])).astype(int)
-    return None if x1 <= x0 or y1 <= y0 else (int(x0), int(y0), int(x1 - x0), int(y1 - y0))
-
-
-def shipped_config(cls, node: str):
-    """Dataclass ``cls`` from the top-level keys of ``config/<node>.yaml`` (its ``node`` group,
-    the node's own settings, left out): the values the node of the graph runs with."""
+def shipped_config(cls, node: str, group: str = ""):
+    """Dataclass ``cls`` from ``config/<node>.yaml``: the keys of ``group``, or without one the
+    top-level keys (the ``node`` group, the node's own settings, and ``track_box`` left out):
+    the values the node of the graph runs with."""
     from ..config import from_mapping, load_node_parameters
     from ..resources import config_path
 
     path = config_path(f"{node}.yaml")
-    params = {k: v for k, v in load_node_parameters(path, node).items() if k != "node"}
+    params = load_node_parameters(path, node)
+    if group:
+        params, node = params.get(group, {}), f"{node}.{group}"
+    else:
+        params = {k: v for k, v in params.items() if k not in ("node", "track_box")}
     return from_mapping(cls, params, f"{path}: {node}")
 
 
@@ -107,9 +99,11 @@ def evaluate_bag(bag, variants, *, particles: int | None = None, metric: str | N
     then tracked (default: the rest). Tracker settings other than variant, N and seed come from
     ``base`` (default: :class:`TrackerConfig`'s), M and the metric too unless given."""
     from ..boosting import HypothesisConfig, PoseHypothesisGenerator
+    from ..detection.track_box import TrackBox, TrackBoxConfig
     from ..evaluation import pose_errors
     from ..model import fixed_wing_mesh
     from ..render import Renderer
+    from ..render.boxes import projected_roi
     from ..sim import iter_frames, read_camera, read_poses
 
     if roi_source not in ROI_SOURCES:
@@ -136,6 +130,8 @@ def evaluate_bag(bag, variants, *, particles: int | None = None, metric: str | N
         camera)
     renderer = Renderer(camera, fixed_wing_mesh("low"), tile=configs[names[0]].tile, max_batch=max(512, particles))
     trackers = {n: Tracker(c, camera, renderer) for n, c in configs.items()}
+    track_box_config = shipped_config(TrackBoxConfig, "detector", "track_box")
+    track_boxes = {n: TrackBox(track_box_config, vertices) for n in names}
     index = {int(s): i for i, s in enumerate(truth.stamps_ns)}
 
     est_t = {n: np.full((count, 3), np.nan) for n in names}
@@ -153,18 +149,30 @@ def evaluate_bag(bag, variants, *, particles: int | None = None, metric: str | N
         if i is None:
             raise EvaluationError(f"{bag}: frame stamp {stamp} has no ground-truth pose")
         gt_t[k], gt_q[k] = truth.trans[i], truth.quat[i]
-        roi = rois(frame, k) if rois is not None else oracle_roi(camera, vertices, truth.quat[i], truth.trans[i])
+        roi = rois(frame, k) if rois is not None else projected_roi(camera, vertices, truth.quat[i], truth.trans[i])
         t_roi = time.perf_counter()
         hyp = None if roi is None else boost.generate(frame, roi, count=particles)
         t_boost = time.perf_counter()
         shared = {"undistort": t_undistort - clock, "roi": t_roi - t_undistort, "boosting": t_boost - t_roi}
         for n, tracker in trackers.items():
-            res = tracker.step(frame, int(stamp), hyp)
+            own_boost = 0.0
+            if roi is not None:
+                track_boxes[n].detected()
+                own = hyp
+            else:
+                t0 = time.perf_counter()
+                box = track_boxes[n].roi(camera, int(stamp))
+                own = None if box is None else boost.generate(frame, box, count=particles)
+                own_boost = time.perf_counter() - t0
+            res = tracker.step(frame, int(stamp), own)
+            if res.has_pose:
+                track_boxes[n].set_pose(int(stamp), res.position, res.quat)
             if res.has_pose and res.state != TrackState.LOST:
                 est_t[n][k], est_q[n][k], est_cov[n][k] = res.position, res.quat, res.covariance
             states[n][k] = int(res.state)
             for s, v in shared.items():
                 ms[n][s] += 1e3 * v
+            ms[n]["boosting"] += 1e3 * own_boost
             for s, v in res.stage_ms.items():
                 ms[n][s] += v
         done = k + 1

@@ -1,0 +1,85 @@
+"""``detection.track_box``: the last pose's box for frames without a detection, and its bounds."""
+
+import numpy as np
+import pytest
+
+from uav_landing_vision.camera import CameraModel
+from uav_landing_vision.detection.track_box import TrackBox, TrackBoxConfig, grow_roi
+from uav_landing_vision.model import fixed_wing_mesh
+from uav_landing_vision.render.boxes import projected_roi
+
+CAMERA = CameraModel(640, 360, [[550.0, 0, 320.0], [0, 550.0, 180.0], [0, 0, 1]])
+VERTICES = fixed_wing_mesh("high").vertices
+POSITION, QUAT = np.array([1.0, -0.5, 30.0]), np.array([0.0, 0.0, 0.0, 1.0])
+FRAME_NS = 34_000_000
+
+
+def track_box(**kwargs) -> TrackBox:
+    box = TrackBox(TrackBoxConfig(**{"enabled": True, **kwargs}), VERTICES)
+    box.set_pose(0, POSITION, QUAT)
+    return box
+
+
+@pytest.mark.parametrize("roi, grow, expected", [
+    ((100, 50, 40, 20), 0.0, (100, 50, 40, 20)),
+    ((100, 50, 40, 20), 0.25, (90, 45, 60, 30)),
+    ((100, 50, 40, 20), 0.5, (80, 40, 80, 40)),
+    ((2, 1, 40, 20), 0.25, (0, 0, 52, 26)),  # clipped at the top left ...
+    ((610, 340, 20, 10), 1.0, (590, 330, 50, 30)),  # ... and at the bottom right of 640 x 360
+])
+def test_grow_roi_moves_each_side_out_and_clips(roi, grow, expected):
+    assert grow_roi(roi, grow, 640, 360) == expected
+
+
+def test_the_box_is_the_grown_box_of_the_projected_model():
+    roi = projected_roi(CAMERA, VERTICES, QUAT, POSITION)
+    assert roi is not None and min(roi[2:]) > 5
+    assert track_box(grow=0.25).roi(CAMERA, FRAME_NS) == grow_roi(roi, 0.25, 640, 360)
+    assert track_box(grow=0.0).roi(CAMERA, FRAME_NS) == roi
+
+
+def test_nothing_when_off_without_a_pose_or_out_of_view():
+    assert TrackBox(TrackBoxConfig(), VERTICES).roi(CAMERA, FRAME_NS) is None
+    off = TrackBox(TrackBoxConfig(), VERTICES)
+    off.set_pose(0, POSITION, QUAT)
+    assert off.roi(CAMERA, FRAME_NS) is None
+    assert TrackBox(TrackBoxConfig(enabled=True), VERTICES).roi(CAMERA, FRAME_NS) is None
+    behind = track_box()
+    behind.set_pose(0, -POSITION, QUAT)
+    assert behind.roi(CAMERA, FRAME_NS) is None
+
+
+def test_the_pose_must_be_recent_and_not_newer_than_the_frame():
+    box = track_box(max_age_s=0.5)
+    assert box.roi(CAMERA, 500_000_000) is not None
+    assert box.roi(CAMERA, 500_000_001) is None
+    box.set_pose(2 * FRAME_NS, POSITION, QUAT)
+    assert box.roi(CAMERA, FRAME_NS) is None
+
+
+def test_at_most_max_frames_in_a_row_until_the_network_finds_the_uav_again():
+    box = track_box(max_frames=3)
+    given = [box.roi(CAMERA, FRAME_NS) is not None for _ in range(5)]
+    assert given == [True, True, True, False, False]
+    box.detected()
+    assert box.roi(CAMERA, FRAME_NS) is not None
+
+
+def test_frames_without_a_box_do_not_count_towards_the_limit():
+    box = track_box(max_frames=2, max_age_s=0.1)
+    assert box.roi(CAMERA, 10 * FRAME_NS) is None  # stale pose: no box, no count
+    box.set_pose(10 * FRAME_NS, POSITION, QUAT)
+    assert box.roi(CAMERA, 11 * FRAME_NS) is not None
+    assert box.roi(CAMERA, 12 * FRAME_NS) is not None
+    assert box.roi(CAMERA, 13 * FRAME_NS) is None
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"grow": -0.1}, "grow must be in"),
+    ({"grow": float("nan")}, "grow must be in"),
+    ({"max_frames": 0}, "max_frames must be at least 1"),
+    ({"max_age_s": 0.0}, "max_age_s must be > 0"),
+])
+def test_bad_settings_are_refused(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        TrackBoxConfig(**kwargs)
