@@ -190,8 +190,20 @@ def test_threshold_ladder_falls_back_to_the_widest_box():
     assert box.w == pytest.approx(280.0, abs=4.0)
 
 
+def test_threshold_ladder_only_for_rois_up_to_its_size_limit():
+    """With ``ladder_max_px`` a ROI longer than the limit gets the first threshold alone."""
+    frame, roi = _near_uav(wing_contrast=14), (60, 90, 280, 28)
+    thesis = obb_from_frame(frame, roi, FastConfig(), 0.10, 2.0)
+    for limit, expected_w in [(0.0, 280.0), (280.0, 280.0), (279.0, thesis.w), (64.0, thesis.w)]:
+        box = obb_from_frame(frame, roi, FastConfig(LADDER.thresholds, LADDER.min_cover, ladder_max_px=limit), 0.10, 2.0)
+        assert box.w == pytest.approx(expected_w, abs=4.0), limit
+    assert FastConfig(LADDER.thresholds, ladder_max_px=64.0).thresholds_for(64.0) == LADDER.thresholds
+    assert FastConfig(LADDER.thresholds, ladder_max_px=64.0).thresholds_for(64.5) == (20,)
+
+
 @pytest.mark.parametrize("kwargs", [{"thresholds": (0,)}, {"thresholds": (256,)}, {"thresholds": ()},
-                                    {"thresholds": (8, 20)}, {"min_cover": 1.5}, {"min_corners": 2}])
+                                    {"thresholds": (8, 20)}, {"min_cover": 1.5}, {"min_corners": 2},
+                                    {"ladder_max_px": -1.0}, {"ladder_max_px": float("nan")}])
 def test_fast_config_validation(kwargs):
     with pytest.raises(ValueError):
         FastConfig(**kwargs)

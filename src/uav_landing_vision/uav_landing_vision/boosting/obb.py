@@ -48,11 +48,16 @@ class FastConfig:
     at 8 a far UAV's box takes in waves and clouds. ``(20, 16, 12, 10, 8)`` with ``min_cover``
     0.9 fixes those boxes; in the tracker it trades better translation for more rotation flips
     near the ship (README, "Pose boosting"), so it is not the default.
+
+    ``ladder_max_px`` (ours; 0 = no limit): the thresholds after the first are tried only for a
+    ROI whose longer side is at most this many pixels, i.e. for a far UAV; a larger ROI gets
+    the first threshold alone.
     """
 
     thresholds: tuple[int, ...] = (20,)
     min_cover: float = 0.9
     min_corners: int = 3
+    ladder_max_px: float = 0.0
 
     def __post_init__(self):
         if not self.thresholds or not all(0 < t < 256 for t in self.thresholds):
@@ -63,6 +68,14 @@ class FastConfig:
             raise ValueError(f"min_cover must be in [0, 1], got {self.min_cover}")
         if self.min_corners < 3:
             raise ValueError(f"min_corners must be at least 3, got {self.min_corners}")
+        if not (np.isfinite(self.ladder_max_px) and self.ladder_max_px >= 0.0):
+            raise ValueError(f"ladder_max_px must be >= 0 (0: no limit), got {self.ladder_max_px}")
+
+    def thresholds_for(self, length_px: float) -> tuple[int, ...]:
+        """The thresholds to try for a ROI whose longer side is ``length_px``."""
+        if self.ladder_max_px and length_px > self.ladder_max_px:
+            return self.thresholds[:1]
+        return self.thresholds
 
 
 def aspect_ratio(w, h):
@@ -163,11 +176,11 @@ def obb_from_frame(image: np.ndarray, roi, config: FastConfig = FastConfig(), ma
 
 
 def outline_corners(gray_roi: np.ndarray, length_px: float, config: FastConfig) -> np.ndarray | None:
-    """FAST corners of the first of ``config.thresholds`` whose corners span (along x or y, the
-    longer) at least ``min_cover`` of ``length_px``, else of the widest-spanning one; None if no
-    threshold gives ``min_corners``."""
+    """FAST corners of the first of ``config.thresholds_for(length_px)`` whose corners span (along
+    x or y, the longer) at least ``min_cover`` of ``length_px``, else of the widest-spanning one;
+    None if no threshold gives ``min_corners``."""
     best, best_span = None, -1.0
-    for threshold in config.thresholds:
+    for threshold in config.thresholds_for(length_px):
         corners = fast_corners(gray_roi, threshold)
         if len(corners) < config.min_corners:
             continue
