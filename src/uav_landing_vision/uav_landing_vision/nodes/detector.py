@@ -85,10 +85,15 @@ class DetectorNode(LandingNode):
         self._pose = (stamp_ns(msg.header.stamp), position, quat)
         self._track_box.set_pose(*self._pose)
 
+    def _camera(self, width: int, height: int):
+        """The rectified camera, or None before camera_info_rect or when the image is not its size."""
+        camera = self._calibration.camera
+        return camera if camera is not None and (camera.width, camera.height) == (width, height) else None
+
     def _window(self, image_stamp_ns: int, width: int, height: int):
         """The search window around the last pose, or None (full frame)."""
-        camera, pose = self._calibration.camera, self._pose
-        if camera is None or pose is None or (camera.width, camera.height) != (width, height):
+        camera, pose = self._camera(width, height), self._pose
+        if camera is None or pose is None:
             return None
         age_s = (image_stamp_ns - pose[0]) * 1e-9
         if not 0.0 <= age_s <= self.node_config.window_max_age_s:
@@ -105,7 +110,8 @@ class DetectorNode(LandingNode):
         except ImageError as exc:
             self.drop(str(exc))
             return
-        window = self._window(stamp_ns(msg.header.stamp), msg.width, msg.height) if self.node_config.search_window else None
+        stamp = stamp_ns(msg.header.stamp)
+        window = self._window(stamp, msg.width, msg.height) if self.node_config.search_window else None
         dets = self._detector.detect(frame, window)
         if window is not None:
             self.counters["windowed"] += 1
@@ -115,7 +121,7 @@ class DetectorNode(LandingNode):
         if len(scores):
             self._track_box.detected()
         else:
-            rois, scores = self._track_box_roi(stamp_ns(msg.header.stamp), msg.width, msg.height), [0.0]
+            rois, scores = self._track_box_roi(stamp, msg.width, msg.height), [0.0]
         out = DetectionArray(header=msg.header, detections=[
             Detection(roi=RegionOfInterest(x_offset=int(x), y_offset=int(y), width=int(w), height=int(h)), score=float(s))
             for (x, y, w, h), s in zip(rois, scores)
@@ -126,8 +132,8 @@ class DetectorNode(LandingNode):
 
     def _track_box_roi(self, image_stamp_ns: int, width: int, height: int) -> list:
         """[the track box] for a frame without detections, or []."""
-        camera = self._calibration.camera
-        if camera is None or (camera.width, camera.height) != (width, height):
+        camera = self._camera(width, height)
+        if camera is None:
             return []
         roi = self._track_box.roi(camera, image_stamp_ns)
         return [] if roi is None else [roi]
