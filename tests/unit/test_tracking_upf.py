@@ -22,6 +22,7 @@ from uav_landing_vision.tracking.track_state import TrackMonitor, TrackState, Tr
 from uav_landing_vision.tracking.upf import (
     Tracker,
     TrackerConfig,
+    coasting_covariance,
     constant_velocity_prediction,
     depth_band,
     load_tracker_config,
@@ -213,6 +214,25 @@ def test_covariance_floors_and_range_fraction_of_the_estimate_depth_band(rendere
                                fractions[used] ** 2 * np.outer(a.position, a.position))  # along the line of sight
     np.testing.assert_allclose(b.covariance[3:, 3:] - a.covariance[3:, 3:], np.radians(floors[used]) ** 2 * np.eye(3))
     np.testing.assert_array_equal(b.covariance[3:, :3], a.covariance[3:, :3])
+
+
+def test_covariance_grows_while_the_track_coasts_and_resets_with_hypotheses(renderer, frame):
+    """Each frame in a row without hypotheses adds σ = n·fraction·range per position axis and n·deg
+    per rotation axis; the estimates are those of a tracker without the term."""
+    off = {"covariance_coast_fraction": 0.0, "covariance_coast_deg": 0.0}
+    on = {"covariance_coast_fraction": 0.02, "covariance_coast_deg": 0.5}
+    trackers = [run(renderer, frame, "C4N1", frames=3, **kw)[0] for kw in (off, on)]
+    for k, (n, hyps) in enumerate([(1, None), (2, None), (3, None), (0, hypotheses(7)), (1, None)]):
+        a, b = (t.step(frame, 10 + k, hyps) for t in trackers)
+        assert a.has_pose and b.has_pose
+        np.testing.assert_array_equal(a.position, b.position)
+        np.testing.assert_array_equal(a.quat, b.quat)
+        s_pos, s_rot = n * 0.02 * np.linalg.norm(a.position), n * np.radians(0.5)
+        np.testing.assert_allclose(b.covariance - a.covariance, np.diag([s_pos**2] * 3 + [s_rot**2] * 3), atol=1e-15)
+    np.testing.assert_allclose(coasting_covariance(np.array([3.0, 0.0, 4.0]), 2, 0.1, 0.25),
+                               np.diag([1.0] * 3 + [0.25] * 3))
+    with pytest.raises(ValueError):
+        TrackerConfig(covariance_coast_deg=-1.0)
 
 
 def test_depth_bands():

@@ -30,8 +30,9 @@ Per frame (:meth:`Tracker.step`), with M particles of which M0 = M − boosted a
    a 6×6 covariance from the weighted particle cloud (:func:`particle_covariance`) with a
    range-proportional σ added along the line of sight and a σ floor on each rotation axis, both
    set per band of the estimate's depth (ours: the cloud's spread alone covers too little of the
-   error, and least near the ship and far out), the track state (:mod:`.track_state`) and
-   per-stage times.
+   error, and least near the ship and far out), growing on every axis with each frame in a row
+   without boosted hypotheses (ours, :func:`coasting_covariance`), the track state
+   (:mod:`.track_state`) and per-stage times.
 
 Everything is batched over particles; each likelihood evaluation is one ``Renderer.silhouettes``
 call. Random draws come from a Generator seeded by ``TrackerConfig.seed``; the refinement has its
@@ -98,6 +99,10 @@ class TrackerConfig:
     covariance_floor_deg: tuple[float, ...] = (10.0, 5.0, 8.0)
     covariance_range_fraction: tuple[float, ...] = (0.2, 0.05, 0.075)
     covariance_bands_m: tuple[float, ...] = (15.0, 60.0)
+    # ours, 0 = off: per frame in a row without boosted hypotheses (the track coasting), σ added to each
+    # position axis (this fraction of the range) and to each rotation axis (deg), growing linearly
+    covariance_coast_fraction: float = 0.02
+    covariance_coast_deg: float = 0.5
     depth_prior_sigma: float = 0.20  # ours, 0 = thesis: relative σ of the boosted-depth prior (depth_prior)
     depth_prior_floor: float = 0.5  # the prior's value far from the boosted depth
     depth_prior_max_m: float = 30.0  # no prior where the boosted depth is beyond this
@@ -122,9 +127,10 @@ class TrackerConfig:
             raise ValueError(f"resampling must be one of {sorted(RESAMPLERS)}, got {self.resampling!r}")
         if self.optimiser not in OPTIMISERS:
             raise ValueError(f"optimiser must be one of {sorted(OPTIMISERS)}, got {self.optimiser!r}")
-        floors = (self.covariance_floor_m, *self.covariance_floor_deg, *self.covariance_range_fraction)
+        floors = (self.covariance_floor_m, *self.covariance_floor_deg, *self.covariance_range_fraction,
+                  self.covariance_coast_fraction, self.covariance_coast_deg)
         if self.tile < 16 or not all(f >= 0 for f in floors):
-            raise ValueError("need tile >= 16 and non-negative covariance floors and range fractions")
+            raise ValueError("need tile >= 16 and non-negative covariance floors, range fractions and coasting terms")
         bands = np.asarray(self.covariance_bands_m, float)
         per_band = {len(self.covariance_floor_deg), len(self.covariance_range_fraction)}
         if per_band != {len(bands) + 1} or not (np.all(bands > 0) and np.all(np.diff(bands) > 0)):
@@ -256,6 +262,16 @@ def particle_covariance(particles: ParticleSet, pos: np.ndarray, quat: np.ndarra
     return cov
 
 
+def coasting_covariance(pos: np.ndarray, frames: int, range_fraction: float, sigma_rad: float) -> np.ndarray:
+    """Ours: the 6×6 variance added after ``frames`` frames in a row without boosted hypotheses,
+    σ = ``frames·range_fraction·|pos|`` on each position axis and ``frames·sigma_rad`` on each
+    rotation axis. Without hypotheses nothing ties the cloud to the frame, and the particles stay
+    as tight as they were while the error grows: the errors of such frames leave the cloud's
+    region in any direction, not only along the line of sight."""
+    s_pos = frames * range_fraction * float(np.linalg.norm(pos))
+    return np.diag(np.repeat([s_pos**2, (frames * sigma_rad) ** 2], 3))
+
+
 def _optimiser(cfg: TrackerConfig):
     return PFO(cfg.pfo) if cfg.optimiser == "pfo" else OPTIMISERS[cfg.optimiser]()
 
@@ -287,6 +303,7 @@ class Tracker:
         self._fresh: ParticleSet | None = None  # this frame's boosted particles
         self._anchor: float | None = None  # this frame's boosted depth z_b (depth_prior), None: no prior
         self._turn_anchor: np.ndarray | None = None  # last refined rotation (rotation_prior), None: no prior
+        self._coasting = 0  # frames in a row without boosted hypotheses (coasting_covariance)
         self.window = RotationWindow(config.rotation_window, 1.5 * config.motion.dt, config.rotation_window_max_turn_deg)
 
     @property
@@ -313,6 +330,7 @@ class Tracker:
         self.likelihood.prepare(frame)
         clock.lap("prepare")
         new = _hypothesis_set(hypotheses, self.hypotheses_needed())
+        self._coasting = 0 if new is not None else self._coasting + 1
         self._anchor = self._boosted_depth(new)
         mixed = self._mix(new)
         clock.lap("proposal")
@@ -476,6 +494,9 @@ class Tracker:
         band = depth_band(pos[2], cfg.covariance_bands_m)
         cov = particle_covariance(particles, pos, quat, cfg.covariance_floor_m,
                                   np.radians(cfg.covariance_floor_deg[band]), cfg.covariance_range_fraction[band])
+        if self._coasting:
+            cov += coasting_covariance(pos, self._coasting, cfg.covariance_coast_fraction,
+                                       np.radians(cfg.covariance_coast_deg))
         n_eff = particles.effective_size()
         clock.lap("output")
         return TrackResult(stamp_ns, state, pos, quat, cov, best_w, n_eff, clock.ms, particles)
