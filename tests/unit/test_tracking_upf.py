@@ -385,6 +385,26 @@ def test_rotation_prior_anchors_on_the_last_refined_rotation_near_the_ship(rende
     assert tracker._turn_anchor is None
 
 
+def test_rotation_prior_anchor_is_held_while_the_track_coasts(renderer, frame):
+    """With ``rotation_prior_hold`` frames without hypotheses keep the anchor of the last frame with
+    them, and the next frame with hypotheses moves it again; without the hold it follows every frame."""
+    def anchors(hold):
+        cfg = TrackerConfig.from_variant("C4N2", particles=40, boosted=10, rotation_prior_hold=hold)
+        tracker = Tracker(cfg, CAMERA, renderer)
+        out = []
+        for k, hyps in enumerate([hypotheses(5), None, None, hypotheses(6)]):
+            tracker.step(frame, k, hyps)
+            out.append(tracker._turn_anchor.copy())
+        return out
+
+    held, followed = anchors(True), anchors(False)
+    np.testing.assert_array_equal(held[0], followed[0])
+    np.testing.assert_array_equal(held[1], held[0])
+    np.testing.assert_array_equal(held[2], held[0])
+    assert not np.array_equal(held[3], held[0])
+    assert not np.array_equal(followed[1], followed[0]) and not np.array_equal(followed[2], followed[1])
+
+
 def test_rotation_refinement_changes_only_the_published_rotation(renderer, frame):
     """The refinement turns the published rotation to one that scores at least as well as the best
     particle's, at the same position; the particles, and so every later frame, stay as without it

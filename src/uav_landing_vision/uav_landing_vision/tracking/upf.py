@@ -15,8 +15,9 @@ Per frame (:meth:`Tracker.step`), with M particles of which M0 = M − boosted a
    refinement) is the likelihood times a depth prior about the boosted depth (:func:`depth_prior`)
    when that depth is within ``depth_prior_max_m`` and within ``depth_prior_gate`` of the last best
    particle's, and times a rotation prior about the last refined rotation
-   (:func:`rotation_prior`) while that estimate is within ``rotation_prior_max_m``; the track
-   state and ``best_likelihood`` use the likelihood alone.
+   (:func:`rotation_prior`) while that estimate is within ``rotation_prior_max_m`` (ours: held
+   while the track coasts, ``rotation_prior_hold``); the track state and ``best_likelihood`` use
+   the likelihood alone.
 4. **Pose optimisation** (§5.5): N iterations of the configured optimiser (PFO by default, with
    the §6.7.1 noise, its translation part scaled by depth / ``pfo.reference_depth_m``: ours).
    Filters are then recentred on the optimised poses.
@@ -110,6 +111,7 @@ class TrackerConfig:
     rotation_prior_sigma_deg: float = 10.0  # ours, 0 = thesis: σ of the rotation prior about the last estimate
     rotation_prior_floor: float = 0.5  # the rotation prior's value far from the last estimate's rotation
     rotation_prior_max_m: float = 15.0  # no rotation prior while the last estimate is beyond this depth
+    rotation_prior_hold: bool = True  # ours: frames without boosted hypotheses keep the anchor (False: it follows)
     estimate: str = "mean"  # ours (best = thesis), see yaml
     rotation_window: int = 4  # ours, 1 = thesis: frames whose estimated rotations are averaged for output
     rotation_window_max_turn_deg: float = 30.0  # a larger turn from the last estimate restarts the window
@@ -488,8 +490,7 @@ class Tracker:
             pos, quat = particles.pos[0].copy(), particles.quat[0]
         quat, _ = self.refinement.refine(self._refinement_score, pos, quat, self._refine_rng)
         clock.lap("refinement")
-        near = cfg.rotation_prior_sigma_deg > 0 and pos[2] <= cfg.rotation_prior_max_m
-        self._turn_anchor = quat.copy() if near else None
+        self._turn_anchor = self._next_turn_anchor(pos, quat)
         quat = self.window(stamp_ns, quat)
         band = depth_band(pos[2], cfg.covariance_bands_m)
         cov = particle_covariance(particles, pos, quat, cfg.covariance_floor_m,
@@ -500,6 +501,18 @@ class Tracker:
         n_eff = particles.effective_size()
         clock.lap("output")
         return TrackResult(stamp_ns, state, pos, quat, cov, best_w, n_eff, clock.ms, particles)
+
+    def _next_turn_anchor(self, pos: np.ndarray, quat: np.ndarray) -> np.ndarray | None:
+        """The rotation prior's anchor for the next frame: this frame's refined rotation while the
+        estimate is within ``rotation_prior_max_m``, else None; with ``rotation_prior_hold``, a frame
+        without boosted hypotheses keeps the anchor it had, so a coasting track cannot walk its own
+        prior away from the last rotation the frame's pixels supported."""
+        cfg = self.config
+        if not (cfg.rotation_prior_sigma_deg > 0 and pos[2] <= cfg.rotation_prior_max_m):
+            return None
+        if cfg.rotation_prior_hold and self._coasting and self._turn_anchor is not None:
+            return self._turn_anchor
+        return quat.copy()
 
     def _empty(self, stamp_ns: int, clock, best_w: float = 0.0) -> TrackResult:
         self.window.reset()
