@@ -275,6 +275,50 @@ def test_a_clock_that_jumps_back_drops_the_held_pose(bridge):
     assert bridge.on_pose(9.0, p_cam, q_cam, COV, now_s=9.0)  # LOST forgets the newest stamp too
 
 
+def test_a_loss_between_two_ticks_goes_around_even_if_the_track_is_back(bridge):
+    fly(bridge, approach(), t_end=(120.0 - 20.0) / 20.0)  # LAND at 20 m
+    assert bridge.stage == Stage.LAND
+    bridge.on_tracker_state(TRACKER_LOST)  # lost and re-acquired within one tick period
+    for k, state in enumerate([TRACKER_ACQUIRING, TRACKER_ACQUIRING, TRACKER_TRACKING]):
+        t = 5.0 + (k + 1) / 30
+        assert feed(bridge, t, on_axis(range_at(t)), state=state)
+    sent = len(bridge.sender.poses)
+    result = bridge.tick(5.1 + 0.03)
+    assert result.guidance.stage == Stage.GO_AROUND and "ODOMETRY" not in result.sent
+    assert len(bridge.sender.poses) == sent and math.isnan(result.guidance.range)
+    assert bridge.tick(5.2).sent == ("ODOMETRY",)  # the next tick sends the new track's pose
+
+
+def test_after_the_clock_jumps_back_sending_resumes_at_once(bridge):
+    fly(bridge, approach(), t_end=(120.0 - 20.0) / 20.0)  # LAND at 20 m, clock near 5 s
+    assert bridge.stage == Stage.LAND
+    feed(bridge, 1.0, on_axis(19.0))  # the replay restarts at 1 s: the held pose is dropped ...
+    result = bridge.tick(1.03)
+    # ... the new pose is taken and sent with a heartbeat, not held back until the clock passes 5 s
+    assert result.sent == ("HEARTBEAT", "ODOMETRY") and result.guidance.stage == Stage.LAND
+
+
+def test_after_the_clock_jumps_back_one_pose_does_not_commit_the_landing(bridge):
+    fly(bridge, approach(), t_end=(120.0 - 30.0) / 20.0)  # LAND at 30 m, a full run of in-cone poses
+    assert bridge.stage == Stage.LAND
+    assert feed(bridge, 1.0, on_axis(8.0))  # the replay restarts at 1 s with a pose at 8 m
+    assert bridge.tick(1.03).guidance.stage == Stage.LAND  # the old run does not count
+    assert feed(bridge, 1.1, on_axis(7.8))
+    assert bridge.tick(1.13).guidance.stage == Stage.LAND  # two poses on the new time-line
+    assert feed(bridge, 1.2, on_axis(7.6))
+    assert bridge.tick(1.23).guidance.stage == Stage.NO_RETURN  # three
+
+
+def test_the_go_around_hold_restarts_when_the_clock_jumps_back():
+    machine = StageMachine(CONE, go_around_hold_s=10.0)
+    machine.update(500.0, geometry_at(30.0), 500.0)
+    machine.update(500.1, geometry_at(29.0), 500.1)
+    assert machine.update(500.2, None, 500.1) == Stage.GO_AROUND
+    assert machine.update(5.0, None, 500.1) == Stage.GO_AROUND  # replay restarted at 5 s
+    assert machine.update(14.9, None, 500.1) == Stage.GO_AROUND
+    assert machine.update(15.0, None, 500.1) == Stage.LOITER  # 10 s on the new time-line
+
+
 def test_a_pose_outside_the_cone_never_commits_the_landing(bridge):
     fly(bridge, approach(), t_end=(120.0 - 30.0) / 20.0)
     assert bridge.stage == Stage.LAND

@@ -35,8 +35,10 @@ class GcsBridge:
     A pose is fresh while ``−CLOCK_LEAD_TOLERANCE_S <= now_s − stamp_s <= stale_timeout_s``;
     the tracker must report TRACKING (its latest state wins; LOST drops the held pose). Stale or
     lost → no position message at all and, in LAND, GO_AROUND at the next tick (within 0.5 s,
-    checked by the config). A clock that jumps back behind the held pose drops it too. Stage
-    changes go to the GCS as STATUSTEXT.
+    checked by the config); a LOST reported between two ticks counts at the next one even if the
+    tracker is back to TRACKING by then. A clock that jumps back behind the held pose drops it
+    too, and restarts the heartbeat, the send rate and the go-around hold on the new time-line.
+    Stage changes go to the GCS as STATUSTEXT.
     """
 
     def __init__(self, config: GcsBridgeConfig, sender: MavlinkSender | None = None):
@@ -45,6 +47,7 @@ class GcsBridge:
         self._sender = sender if sender is not None else MavlinkSender(config.mavlink)
         self._machine = StageMachine(config.cone, config.go_around_hold_s)
         self._tracker_state = TRACKER_LOST
+        self._lost_since_tick = False
         self._pose: LandingPose | None = None
         self._stamp = -math.inf
         self._pose_sent = False
@@ -90,6 +93,7 @@ class GcsBridge:
         self._tracker_state = state
         if state == TRACKER_LOST:
             self._pose, self._stamp = None, -math.inf
+            self._lost_since_tick = True
 
     def reset(self) -> None:
         """Operator reset of the stage machine (e.g. after recovery from the net)."""
@@ -97,11 +101,15 @@ class GcsBridge:
 
     def tick(self, now_s: float) -> TickResult:
         self._forget_pose_ahead_of(now_s)
+        if now_s < max(self._last_heartbeat, self._last_position_send):  # the clock jumped back
+            self._last_heartbeat = self._last_position_send = -math.inf
         fresh = (
             self._pose is not None
             and self._tracker_state == TRACKER_TRACKING
+            and not self._lost_since_tick
             and now_s - self._stamp <= self._cfg.stale_timeout_s
         )
+        self._lost_since_tick = False
         geometry = cone_geometry(self._pose.position, self._cfg.cone) if fresh else None
         before = self._machine.stage
         stage = self._machine.update(now_s, geometry, self._stamp)

@@ -81,8 +81,8 @@ class StageMachine:
     (distinct stamps, as ticked) were all inside the cone and none changed the range faster than
     ``max_range_rate_mps`` since the one before; LAND → GO_AROUND on track loss or outside the
     cone (a pose outside it never commits the landing); GO_AROUND → LOITER after
-    ``go_around_hold_s``. A loss during APPROACH returns to LOITER (the UAV has not started its
-    descent). NO_RETURN holds until ``reset()``.
+    ``go_around_hold_s`` (restarted if the clock jumps back). A loss during APPROACH returns to
+    LOITER (the UAV has not started its descent). NO_RETURN holds until ``reset()``.
 
     So a lone outlier can commit the landing at most ``max_range_rate_mps`` × (its stamp − the
     previous pose's) metres early; one that jumps further restarts the count.
@@ -107,8 +107,10 @@ class StageMachine:
             return
         if self._run:
             last_stamp, last_range = self._run[-1]
-            if stamp_s <= last_stamp:  # the same pose ticked again: no new evidence
+            if stamp_s == last_stamp:  # the same pose ticked again: no new evidence
                 return
+            if stamp_s < last_stamp:  # the clock jumped back: the run so far is another time-line's
+                self._run = []
             if abs(geometry.range - last_range) > self._cone.max_range_rate_mps * (stamp_s - last_stamp):
                 self._run = []
         self._run = [*self._run[-(self._cone.no_return_confirm_poses - 1):], (stamp_s, geometry.range)]
@@ -117,6 +119,7 @@ class StageMachine:
         """Advance by at most one transition; ``geometry`` (of the pose stamped ``stamp_s``) is
         None when there is no fresh track."""
         self._follow(stamp_s, geometry)
+        self._go_around_since = min(self._go_around_since, now_s)  # a clock that jumped back restarts the hold
         s = self.stage
         if s is Stage.LOITER and geometry is not None:
             s = Stage.APPROACH
