@@ -224,11 +224,24 @@ def test_gabf_uses_the_whole_budget_when_no_pose_reaches_t_min():
     assert refined.weight.max() >= 0.1 * objective(start()).max()
 
 
-def test_gabf_keeps_the_b_best_input_particles():
+def test_gabf_optimises_the_b_best_input_particles_and_carries_the_others():
     p = start().with_weight(np.arange(M, dtype=float))
-    refined = GAbF(GAbFConfig(top_b=30)).run(p, objective, np.random.default_rng(0), 1)
-    assert len(refined) == 30
-    assert set(refined.state["id"]) <= set(range(70, 100))
+    counter = Counting()
+    refined = GAbF(GAbFConfig(top_b=30)).run(p, counter, np.random.default_rng(0), 1)
+    assert len(refined) == M and set(counter.batches) == {30}
+    assert set(refined.state["id"][:30]) <= set(range(70, 100))
+    rest = refined.take(np.arange(30, M))  # the 70 others, as they came, best first
+    np.testing.assert_array_equal(rest.state["id"], np.arange(69, -1, -1))
+    np.testing.assert_array_equal(rest.pos, p.pos[69::-1])
+    np.testing.assert_array_equal(rest.weight, p.weight[69::-1])
+
+
+def test_gabf_returns_a_single_particle_as_it_came():
+    one = start().take([0])
+    refined = GAbF().run(one, objective, np.random.default_rng(0), 5)
+    assert len(refined) == 1
+    np.testing.assert_array_equal(refined.pos, one.pos)
+    np.testing.assert_array_equal(refined.quat, one.quat)
 
 
 @pytest.mark.parametrize(

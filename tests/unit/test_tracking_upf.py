@@ -98,6 +98,22 @@ def test_optimisation_does_not_lose_the_best_pose(renderer, frame):
     assert n3[0].best_likelihood >= n0[0].best_likelihood
 
 
+@pytest.mark.parametrize("optimiser", ["pfo", "pso", "constricted_pso", "gabf"])
+def test_every_optimiser_keeps_m_particles_and_copes_with_one_hypothesis(renderer, frame, optimiser):
+    big = Tracker(TrackerConfig.from_variant("C4N2", particles=150, boosted=25, optimiser=optimiser), CAMERA, renderer)
+    for k in range(2):  # GAbF optimises its top_b (100) best and carries the rest
+        assert len(big.step(frame, k, hypotheses(100 + k, count=150)).particles) == 150
+    cfg = TrackerConfig.from_variant("C4N2", particles=40, boosted=10, optimiser=optimiser)
+    one = Tracker(cfg, CAMERA, renderer).step(frame, 0, hypotheses(1, count=1))
+    assert one.has_pose and len(one.particles) == 1
+
+
+def test_a_renderer_too_small_for_the_refinement_is_refused_at_construction(renderer):
+    cfg = TrackerConfig.from_variant("C4N2", particles=40, refine=RotationRefinementConfig(candidates=512))
+    with pytest.raises(ValueError, match="512 \\+ 1 refinement poses"):
+        Tracker(cfg, CAMERA, renderer)
+
+
 def test_same_seed_same_estimates_other_seed_differs(renderer, frame):
     _, a = run(renderer, frame, "C4N2", seed=7)
     _, b = run(renderer, frame, "C4N2", seed=7)

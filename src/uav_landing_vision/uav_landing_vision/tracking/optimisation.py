@@ -372,7 +372,9 @@ class GAbF:
     restarts the bootstrap with Top A rebuilt from the current population (up to
     ``max_restarts`` times); ``fine_steps`` fine moves end the run, as does the iteration budget.
     The result is the last population (the ``B`` best input particles) with its worst members
-    replaced by the best ``A`` poses ever scored, weighted by their scores.
+    replaced by the best ``A`` poses ever scored, weighted by their scores, followed by the input
+    particles beyond the ``B`` best as they came (so the set keeps its size). A set of fewer than
+    two particles, which crossover cannot work on, is returned as it came.
     """
 
     def __init__(self, config: GAbFConfig = GAbFConfig()):
@@ -391,8 +393,9 @@ class GAbF:
         _check_iterations(iterations)
         cfg = self.config
         if len(particles) < 2:
-            raise ValueError("gabf: needs at least two particles")
-        pop = _top(particles, cfg.top_b)
+            return particles
+        order = np.argsort(-particles.weight, kind="stable")
+        pop, rest = particles.take(order[: cfg.top_b]), particles.take(order[cfg.top_b:])
         a = min(cfg.top_a, len(pop))
         top = elite = None
         phase, step, restarts = BOOTSTRAP, 0, 0
@@ -412,7 +415,7 @@ class GAbF:
             pop = self._move(pop, top, phase, step, rng)
             step += 1
         keep = _top(pop, len(pop) - len(elite))
-        return ParticleSet.concat([keep, elite])
+        return ParticleSet.concat([keep, elite, rest])
 
     def _move(self, pop: ParticleSet, top: ParticleSet, phase: str, step: int, rng) -> ParticleSet:
         cfg, m = self.config, len(pop)

@@ -286,13 +286,15 @@ class Tracker:
     """
 
     def __init__(self, config: TrackerConfig, camera, renderer=None):
+        batch = max(config.particles, config.refine.candidates + 1)  # one draw call each
         if renderer is None:
             from ..model import fixed_wing_mesh
             from ..render import Renderer
 
-            renderer = Renderer(camera, fixed_wing_mesh("low"), tile=config.tile, max_batch=max(512, config.particles))
-        if renderer.max_batch < config.particles:
-            raise ValueError(f"renderer max_batch {renderer.max_batch} < particles {config.particles}")
+            renderer = Renderer(camera, fixed_wing_mesh("low"), tile=config.tile, max_batch=max(512, batch))
+        if renderer.max_batch < batch:
+            raise ValueError(f"renderer max_batch {renderer.max_batch} < {batch}, the largest batch this tracker "
+                             f"renders ({config.particles} particles, {config.refine.candidates} + 1 refinement poses)")
         self.config = config
         self.likelihood = make_likelihood(config.metric, renderer, config.colour if config.metric == "colour" else None)
         self.optimiser = _optimiser(config)
