@@ -209,11 +209,19 @@ def test_config_from_params_file_nested_groups_and_defaults(ros, tmp_path):
         (Parameter("count", value="three"), "count: expected an integer"),
         (Parameter("inner.gain", value=True), "inner.gain: expected a number"),
         (Parameter("colour", value=1), r"unknown key\(s\) \['colour'\]"),
+        (Parameter("inner.gain", value=float("nan")), "inner.gain: expected a finite number"),
     ],
 )
 def test_bad_parameter_fails_start_up_naming_the_key(ros, override, message):
     with pytest.raises(ConfigError, match=message):
         _Probe(context=ros.context, parameter_overrides=[override])
+
+
+@pytest.mark.parametrize("leaf_first", [True, False])
+def test_a_name_given_both_as_a_value_and_as_a_group_fails_start_up(ros, leaf_first):
+    overrides = [Parameter("inner", value="x"), Parameter("inner.gain", value=2.0)]
+    with pytest.raises(ConfigError, match="parameter inner"):
+        _Probe(context=ros.context, parameter_overrides=overrides if leaf_first else overrides[::-1])
 
 
 def test_diagnostics_report_counters_and_the_last_error(ros):

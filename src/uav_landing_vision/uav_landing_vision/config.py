@@ -2,10 +2,12 @@
 
 The files in ``config/`` are ROS 2 parameter files (``<node>: ros__parameters: {...}``), so the
 nodes (``--ros-args --params-file``) and the CLI read the same values. Unknown keys, missing
-sections and values of the wrong type are errors that name the file and the key.
+sections, values of the wrong type and numbers that are not finite (``.nan``, ``.inf``) are
+errors that name the file and the key.
 """
 
 import dataclasses
+import math
 import types
 import typing
 from collections.abc import Hashable
@@ -102,7 +104,13 @@ def _convert(hint, value, key: str):
     if hint is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(f"{key}: expected a number, got {value!r}")
-        return float(value)
+        try:
+            number = float(value)
+        except OverflowError:  # an integer beyond the float range
+            number = math.inf
+        if not math.isfinite(number):
+            raise ConfigError(f"{key}: expected a finite number, got {value!r}")
+        return number
     if hint is int:
         if isinstance(value, bool) or not isinstance(value, int):
             raise ConfigError(f"{key}: expected an integer, got {value!r}")

@@ -52,8 +52,12 @@ class LandingNode(Node):
                 value = list(value)
             *groups, leaf = name.split(".")
             level = nested
-            for group in groups:
+            for depth, group in enumerate(groups):
                 level = level.setdefault(group, {})
+                if not isinstance(level, dict):
+                    raise ConfigError(f"parameter {name}: {'.'.join(groups[:depth + 1])} is a value, not a group")
+            if isinstance(level.get(leaf), dict):
+                raise ConfigError(f"parameter {name} is a group of parameters, not a value")
             level[leaf] = value
         return nested
 
