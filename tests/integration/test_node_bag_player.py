@@ -4,7 +4,7 @@ import threading
 
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import PoseStamped
+from geometry_msgs.msg import PointStamped, PoseStamped
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rosbags.rosbag2 import StoragePlugin, Writer
@@ -167,6 +167,18 @@ def test_undeserialisable_messages_and_uninstalled_types_are_skipped(ros, playba
     assert "/camera/image_raw: message at 1010000000 ns does not deserialise" in playback.node.last_error
     custom = ros.add(BagPlayer(context=ros.context, parameter_overrides=[Parameter("bag", value=str(tmp_path / "custom"))]))
     assert custom.play(ros.executor) == 0 and custom.counters["published"] == 0
+
+
+def test_a_second_type_recorded_on_a_topic_is_not_played(ros, playbacks, tmp_path):
+    other = PointStamped()
+    other.header.stamp.sec, other.point.x = 1, 7.0
+    bag = _bag(tmp_path, extra=[("/uav/ground_truth", "geometry_msgs/msg/PointStamped", 1_010_000_000, other)])
+    truths = ros.collect(PoseStamped, "/uav/ground_truth", RELIABLE_QOS)
+    playback = Playback(ros, bag, mode="timed", rate=2.0, ready_topics=["/uav/ground_truth"])
+    playbacks.append(playback.start())
+    assert ros.spin_until(lambda: playback.done() and len(truths) >= FRAMES)
+    assert playback.result == 0 and len(truths) == FRAMES and playback.node.counters["dropped"] == 0
+    assert [t.pose.position.z for t in truths] == [50.0 - i for i in range(FRAMES)]
 
 
 def test_missing_and_corrupt_bags_fail_start_up(ros, tmp_path):

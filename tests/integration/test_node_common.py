@@ -1,4 +1,4 @@
-"""Shared node pieces (image conversion, QoS, parameters → config, /diagnostics), and the
+"""Shared node pieces (image conversion, QoS, stamp matching, parameters → config, /diagnostics), and the
 in-process rclpy harness and bag/image helpers the other ``test_node_*`` modules import."""
 
 import time
@@ -23,6 +23,7 @@ from uav_landing_vision.config import ConfigError
 from uav_landing_vision.nodes.base import LandingNode
 from uav_landing_vision.nodes.image import ImageError, image_to_numpy, numpy_to_image
 from uav_landing_vision.nodes.qos import IMAGE_QOS, RELIABLE_QOS, SENSOR_QOS, qos_for_type
+from uav_landing_vision.nodes.sync import RepeatedStampError, StampCache
 
 SPIN_TIMEOUT_S = 30.0  # generous: discovery takes seconds and other jobs share the 2 cores
 SMALL_CAMERA = CameraModel(40, 30, np.array([[36.0, 0.0, 19.6], [0.0, 36.0, 14.8], [0.0, 0.0, 1.0]]), np.array([-0.25, 0.08, 0.001, -0.002, 0.0]))
@@ -98,9 +99,10 @@ def write_bag(path, entries, storage=StoragePlugin.MCAP):
     with Writer(path, version=9, storage_plugin=storage) as writer:
         connections = {}
         for topic, type_name, t_ns, msg in entries:
-            if topic not in connections:
-                connections[topic] = writer.add_connection(topic, type_name, typestore=typestore)
-            writer.write(connections[topic], t_ns, msg if isinstance(msg, bytes) else serialize_message(msg))
+            key = (topic, type_name)
+            if key not in connections:
+                connections[key] = writer.add_connection(topic, type_name, typestore=typestore)
+            writer.write(connections[key], t_ns, msg if isinstance(msg, bytes) else serialize_message(msg))
     return path
 
 
@@ -169,6 +171,33 @@ def test_qos_reliable_in_the_graph_best_effort_only_for_camera_drivers():
     for name in ("uav_landing_msgs/msg/PoseHypotheses", "geometry_msgs/msg/PoseWithCovarianceStamped", "geometry_msgs/msg/PoseStamped"):
         profile = qos_for_type(name)
         assert profile is RELIABLE_QOS and profile.reliability == ReliabilityPolicy.RELIABLE and profile.depth >= 10
+
+
+# --- stamp matching ------------------------------------------------------------------------
+
+
+def test_stamp_cache_pairs_by_stamp_in_either_order_and_evicts_the_oldest():
+    cache = StampCache(("image", "boxes"), size=2)
+    assert cache.add("image", 10, "i10") == (None, [])
+    assert cache.add("boxes", 20, "b20") == (None, [])
+    entry, evicted = cache.add("boxes", 10, "b10")
+    assert entry.items == {"image": "i10", "boxes": "b10"} and evicted == [] and len(cache) == 1
+    cache.add("image", 30, "i30")
+    entry, evicted = cache.add("image", 40, "i40")  # three waiting stamps: the oldest goes
+    assert entry is None and [e.stamp_ns for e in evicted] == [20] and len(cache) == 2
+    assert [e.stamp_ns for e in cache.pop_older(40)] == [30] and len(cache) == 1
+    with pytest.raises(KeyError):
+        cache.add("pose", 50, "p")
+
+
+def test_stamp_cache_refuses_a_repeated_stamp_and_keeps_the_first_message():
+    cache = StampCache(("image", "boxes"), size=4)
+    cache.add("image", 10, "first")
+    with pytest.raises(RepeatedStampError, match="second image stamped 10 ns"):
+        cache.add("image", 10, "second")
+    entry, _ = cache.add("boxes", 10, "b10")
+    assert entry.items["image"] == "first"
+    assert cache.add("image", 10, "again") == (None, [])  # a completed stamp is no longer waiting
 
 
 # --- parameters → config, diagnostics -------------------------------------------------------

@@ -82,8 +82,9 @@ class BagPlayer(LandingNode):
         self.config = cfg = self.load_config(BagPlayerConfig)
         self._reader = _open_bag(cfg.bag)
         self._players = {}
+        self._played = set()  # ids of the connections whose messages are played
         for conn in self._reader.connections:
-            self._add_publisher(conn.topic, conn.msgtype)
+            self._add_publisher(conn)
         self._clock_pub = self.create_publisher(Clock, "/clock", RELIABLE_QOS) if cfg.clock else None
         self._pending = None  # stamp (ns) of the paced frame awaiting its acknowledgement
         self._acked = set()
@@ -100,14 +101,18 @@ class BagPlayer(LandingNode):
         topics = {c.topic: c.msgcount for c in self._reader.connections if c.topic in self._players}
         self.get_logger().info(f"bag {cfg.bag}: {self._reader.message_count} messages, topics {topics}, mode {cfg.mode}")
 
-    def _add_publisher(self, topic: str, type_name: str) -> None:
+    def _add_publisher(self, conn) -> None:
+        topic, type_name = conn.topic, conn.msgtype
         cls = _message_class(type_name)
         if cls is None:
             self.get_logger().warn(f"{topic}: message type {type_name} is not installed; topic not played")
-        elif topic in self._players and self._players[topic].msg_type is not cls:
+            return
+        if topic in self._players and self._players[topic].msg_type is not cls:
             self.get_logger().warn(f"{topic}: recorded with several types; {type_name} not played")
-        elif topic not in self._players:
+            return
+        if topic not in self._players:
             self._players[topic] = self.create_publisher(cls, topic, qos_for_type(type_name))
+        self._played.add(conn.id)
 
     def _on_ack(self, msg) -> None:
         self._acked.add(stamp_ns(msg.header.stamp))
@@ -122,9 +127,9 @@ class BagPlayer(LandingNode):
         total = sum(c.msgcount for c in self._reader.connections if c.topic == self.config.pace_topic)
         try:
             for conn, t_ns, raw in self._messages():
-                publisher = self._players.get(conn.topic)
-                if publisher is None:
+                if conn.id not in self._played:
                     continue
+                publisher = self._players[conn.topic]
                 self.counters["received"] += 1
                 try:
                     msg = deserialize_message(raw, publisher.msg_type)

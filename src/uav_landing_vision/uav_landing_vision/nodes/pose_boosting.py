@@ -39,7 +39,7 @@ from .calibration import Calibration
 from .image import ImageError, image_to_rgb
 from .poses import numpy_to_pose
 from .qos import IMAGE_QOS, RELIABLE_QOS
-from .sync import StampCache
+from .sync import RepeatedStampError, StampCache
 
 
 @dataclass(frozen=True)
@@ -95,7 +95,11 @@ class PoseBoostingNode(LandingNode):
         self._add("detections", msg.header, msg)
 
     def _add(self, name: str, header, item) -> None:
-        entry, evicted = self._cache.add(name, stamp_ns(header.stamp), item)
+        try:
+            entry, evicted = self._cache.add(name, stamp_ns(header.stamp), item)
+        except RepeatedStampError as exc:
+            self.drop(str(exc))
+            return
         for old in evicted:
             missing = "detections" if "image" in old.items else "image"
             self.drop(f"no {missing} with stamp {old.stamp_ns} ns within {self._cache.size} stamps")

@@ -18,6 +18,10 @@ class Entry:
     since: float = field(default_factory=time.monotonic)  # when its first message arrived
 
 
+class RepeatedStampError(ValueError):
+    """An input delivered a second message with a stamp still waiting in the cache."""
+
+
 class StampCache:
     """Incomplete entries keyed by stamp (integer ns), bounded to ``size`` entries."""
 
@@ -31,9 +35,12 @@ class StampCache:
     def add(self, name: str, stamp_ns: int, item) -> tuple[Entry | None, list[Entry]]:
         """Store ``item`` of input ``name``; returns (the entry it completed, or None, and the
         entries evicted because the cache overflowed, oldest first). A repeated (name, stamp)
-        replaces the earlier item."""
+        raises :class:`RepeatedStampError` and keeps the earlier item: which of the two the other
+        input's message belongs to cannot be told."""
         if name not in self.inputs:
             raise KeyError(f"unknown input {name!r}")
+        if name in self._entries.get(stamp_ns, Entry(stamp_ns)).items:
+            raise RepeatedStampError(f"a second {name} stamped {stamp_ns} ns while the first waits for its pair")
         entry = self._entries.setdefault(stamp_ns, Entry(stamp_ns))
         entry.items[name] = item
         if self.inputs <= entry.items.keys():

@@ -47,7 +47,7 @@ from .calibration import Calibration
 from .image import ImageError, image_to_rgb, numpy_to_image
 from .poses import numpy_to_pose, pose_to_numpy
 from .qos import IMAGE_QOS, RELIABLE_QOS
-from .sync import StampCache
+from .sync import RepeatedStampError, StampCache
 
 DEADLINE_CHECK_S = 0.02
 OVERLAY_COLOUR = (0, 255, 0)
@@ -139,7 +139,11 @@ class TrackerNode(LandingNode):
         self._add("hypotheses", stamp, boosted)
 
     def _add(self, name: str, stamp: int, item) -> None:
-        entry, evicted = self._cache.add(name, stamp, item)
+        try:
+            entry, evicted = self._cache.add(name, stamp, item)
+        except RepeatedStampError as exc:
+            self.drop(str(exc))
+            return
         for old in evicted:
             self._expire(old)
         if entry is not None:
