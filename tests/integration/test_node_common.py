@@ -200,6 +200,17 @@ def test_stamp_cache_refuses_a_repeated_stamp_and_keeps_the_first_message():
     assert cache.add("image", 10, "again") == (None, [])  # a completed stamp is no longer waiting
 
 
+def test_stamp_cache_hands_back_the_entries_of_an_old_time_line():
+    cache = StampCache(("image", "boxes"), size=3, restart_behind_ns=100)
+    cache.add("image", 1000, "i1000")
+    cache.add("image", 1010, "i1010")
+    assert cache.add("boxes", 950, "b950") == (None, [])  # 60 ns behind: late, kept waiting
+    entry, evicted = cache.add("image", 10, "i10")  # a replay from the start: the old entries go
+    assert entry is None and [e.stamp_ns for e in evicted] == [950, 1000, 1010] and len(cache) == 1
+    entry, _ = cache.add("boxes", 10, "b10")
+    assert entry.items == {"image": "i10", "boxes": "b10"}
+
+
 # --- parameters → config, diagnostics -------------------------------------------------------
 
 @dataclass(frozen=True)

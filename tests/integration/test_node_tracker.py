@@ -162,6 +162,26 @@ def test_malformed_input_is_dropped_and_tracking_goes_on(ros, generator):
     assert ros.spin_until(lambda: rig.pose_of(6) is not None)
 
 
+def test_a_replay_started_again_restarts_the_track(ros, generator):
+    rig = Rig(ros)
+    rig.send_info()
+    for k in range(3):  # a first run of frames 0-2, stamped 5 s later than the second
+        image, hyps = frame_msg(k), boosted_msg(generator, k)
+        image.header.stamp.sec += 5
+        hyps.header.stamp.sec += 5
+        rig.image_pub.publish(image)
+        rig.hyp_pub.publish(hyps)
+        assert ros.spin_until(lambda: rig.node.counters["tracked"] == k + 1)
+    late = frame_msg(3)
+    late.header.stamp.sec += 4  # 1 s behind the last: out of order, dropped
+    assert rig.send(3, late) is None and "is not after the last tracked frame" in rig.node.last_error
+    for k in range(3, 6):  # 5 s behind: a new time-line, tracked from its first frame
+        status = rig.send(k, frame_msg(k), boosted_msg(generator, k))
+        assert status is not None and status.state != TrackerStatus.LOST
+    assert rig.node.counters["tracked"] == 6 and ros.spin_until(lambda: rig.pose_of(5) is not None)
+    assert rig.status_of(3).state == TrackerStatus.ACQUIRING  # the track restarted
+
+
 def test_a_calibration_it_cannot_use_is_dropped_and_the_last_one_kept(ros, generator, monkeypatch):
     rig = Rig(ros)
     rig.send_info()

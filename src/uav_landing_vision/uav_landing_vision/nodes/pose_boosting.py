@@ -9,7 +9,8 @@ tracks that frame by prediction. No GL context: the pose database is loaded once
 
 Matching: image and detections are paired by exact ``header.stamp`` in a cache of
 ``node.cache_size`` stamps, in either order of arrival; when it overflows, the oldest
-unpaired entry is dropped and counted.
+unpaired entry is dropped and counted, and so are the waiting entries more than 2 s after a new
+message's stamp (a replay started again).
 
 Hypothesis count: every message carries M = ``particles`` poses
 (``HypothesisConfig.count(first_frame=True)``); the tracker takes the first M (at
@@ -39,7 +40,7 @@ from .calibration import Calibration
 from .image import ImageError, image_to_rgb
 from .poses import numpy_to_pose
 from .qos import IMAGE_QOS, RELIABLE_QOS
-from .sync import RepeatedStampError, StampCache
+from .sync import RESTART_BEHIND_NS, RepeatedStampError, StampCache
 
 
 @dataclass(frozen=True)
@@ -59,7 +60,7 @@ class PoseBoostingNode(LandingNode):
         self._database = _load_database(self.config)
         self._generator = None
         self._calibration = Calibration()
-        self._cache = StampCache(("image", "detections"), self.node_config.cache_size)
+        self._cache = StampCache(("image", "detections"), self.node_config.cache_size, RESTART_BEHIND_NS)
         self._pub = self.create_publisher(PoseHypotheses, "uav/pose_hypotheses", RELIABLE_QOS)
         self.create_subscription(CameraInfo, "camera/camera_info_rect", self._on_camera_info, IMAGE_QOS)
         self.create_subscription(Image, "camera/image_rect", self._on_image, IMAGE_QOS)

@@ -3,10 +3,17 @@
 A :class:`StampCache` holds, per stamp, the messages received so far from a fixed set of
 inputs, in either order of arrival. A stamp is complete when every input has delivered; the
 cache keeps at most ``size`` incomplete stamps and hands back the oldest when it overflows.
+With ``restart_behind_ns``, a message stamped that far before a waiting entry starts a new
+time-line (a replay started again): the entries of the old one are handed back at once, where
+they would otherwise outrank, and evict, every new stamp.
 """
 
 import time
 from dataclasses import dataclass, field
+
+# A message stamped this far before the ones waiting belongs to a new time-line (a replay or a
+# camera clock started again), not to a late delivery.
+RESTART_BEHIND_NS = 2_000_000_000
 
 
 @dataclass
@@ -25,27 +32,31 @@ class RepeatedStampError(ValueError):
 class StampCache:
     """Incomplete entries keyed by stamp (integer ns), bounded to ``size`` entries."""
 
-    def __init__(self, inputs, size: int):
+    def __init__(self, inputs, size: int, restart_behind_ns: int | None = None):
         if size < 1:
             raise ValueError(f"cache size must be at least 1, got {size}")
         self.inputs = frozenset(inputs)
         self.size = size
+        self.restart_behind_ns = restart_behind_ns
         self._entries: dict[int, Entry] = {}
 
     def add(self, name: str, stamp_ns: int, item) -> tuple[Entry | None, list[Entry]]:
         """Store ``item`` of input ``name``; returns (the entry it completed, or None, and the
-        entries evicted because the cache overflowed, oldest first). A repeated (name, stamp)
+        entries evicted, by a new time-line or because the cache overflowed, oldest first). A repeated (name, stamp)
         raises :class:`RepeatedStampError` and keeps the earlier item: which of the two the other
         input's message belongs to cannot be told."""
         if name not in self.inputs:
             raise KeyError(f"unknown input {name!r}")
         if name in self._entries.get(stamp_ns, Entry(stamp_ns)).items:
             raise RepeatedStampError(f"a second {name} stamped {stamp_ns} ns while the first waits for its pair")
+        evicted = []
+        if self.restart_behind_ns is not None:
+            ahead = sorted(s for s in self._entries if s - stamp_ns > self.restart_behind_ns)
+            evicted = [self._entries.pop(s) for s in ahead]
         entry = self._entries.setdefault(stamp_ns, Entry(stamp_ns))
         entry.items[name] = item
         if self.inputs <= entry.items.keys():
-            return self._entries.pop(stamp_ns), []
-        evicted = []
+            return self._entries.pop(stamp_ns), evicted
         while len(self._entries) > self.size:
             evicted.append(self._entries.pop(min(self._entries)))
         return None, evicted

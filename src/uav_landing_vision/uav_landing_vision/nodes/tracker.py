@@ -13,7 +13,9 @@ calibration is used) and ``uav/pose_hypotheses``. Publishes, with the image's he
 Matching: an image and its hypotheses are paired by exact ``header.stamp`` (either order,
 cache of ``node.cache_size`` stamps). An image waits at most ``node.hypotheses_timeout_s``
 for its hypotheses, then is tracked by prediction; frames are tracked in stamp order, so a
-frame whose successor is complete is tracked at once by prediction. Hypotheses without
+frame whose successor is complete is tracked at once by prediction. An image stamped more than
+2 s before the last tracked frame starts a new time-line (a replay or clock started again): the
+track restarts, where every later frame would otherwise be dropped as out of order. Hypotheses without
 an image, late ones and malformed ones (non-finite, non-unit quaternion: the frame is then
 tracked by prediction at once) are logged, counted and dropped.
 
@@ -47,7 +49,7 @@ from .calibration import Calibration
 from .image import ImageError, image_to_rgb, numpy_to_image
 from .poses import numpy_to_pose, pose_to_numpy
 from .qos import IMAGE_QOS, RELIABLE_QOS
-from .sync import RepeatedStampError, StampCache
+from .sync import RESTART_BEHIND_NS, RepeatedStampError, StampCache
 
 DEADLINE_CHECK_S = 0.02
 OVERLAY_COLOUR = (0, 255, 0)
@@ -114,6 +116,8 @@ class TrackerNode(LandingNode):
     def _on_image(self, msg: Image) -> None:
         self.counters["received"] += 1
         stamp = stamp_ns(msg.header.stamp)
+        if self._last_stamp - stamp > RESTART_BEHIND_NS:
+            self._restart_time_line(stamp)
         if stamp <= self._last_stamp:
             self.drop(f"image stamped {stamp} ns is not after the last tracked frame ({self._last_stamp} ns)")
             return
@@ -123,6 +127,15 @@ class TrackerNode(LandingNode):
             self.drop(str(exc))
             return
         self._add("image", stamp, (msg, frame))
+
+    def _restart_time_line(self, stamp: int) -> None:
+        self.get_logger().warning(
+            f"image stamped {stamp} ns is {(self._last_stamp - stamp) * 1e-9:.1f} s before the last tracked frame: "
+            "a new time-line (replay or clock restarted?); the track restarts")
+        self._last_stamp = -1
+        self._cache = StampCache(self._cache.inputs, self._cache.size)
+        if self._tracker is not None:
+            self._tracker.reset()
 
     def _on_hypotheses(self, msg: PoseHypotheses) -> None:
         self.counters["hypotheses_received"] += 1
