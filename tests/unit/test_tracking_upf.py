@@ -114,6 +114,17 @@ def test_a_renderer_too_small_for_the_refinement_is_refused_at_construction(rend
         Tracker(cfg, CAMERA, renderer)
 
 
+def test_effective_particles_are_those_of_the_importance_weights_before_resampling(renderer, frame):
+    """(6.5): one pose on the UAV among 39 off the image is one effective particle, not the 40
+    copies of it that resampling makes."""
+    hyps = hypotheses(3, count=40)
+    hyps.positions[1:] = [50.0, 0.0, 6.0]  # off the image: they score 0
+    result = Tracker(TrackerConfig.from_variant("C4N0", particles=40, boosted=10), CAMERA, renderer).step(frame, 0, hyps)
+    assert result.has_pose and result.effective_particles == pytest.approx(1.0)
+    spread = Tracker(TrackerConfig.from_variant("C4N0", particles=40, boosted=10), CAMERA, renderer)
+    assert 5.0 < spread.step(frame, 0, hypotheses(3, count=40)).effective_particles <= 40.0
+
+
 def test_same_seed_same_estimates_other_seed_differs(renderer, frame):
     _, a = run(renderer, frame, "C4N2", seed=7)
     _, b = run(renderer, frame, "C4N2", seed=7)

@@ -346,12 +346,13 @@ class Tracker:
             mixed, scores = self._filter(mixed, clock)
         w = self._weights(mixed, scores)
         clock.lap("weighting")
+        n_eff = mixed.with_weight(w).effective_size() if w.sum() > 0.0 else 0.0
         particles = self._resample(mixed, w)
         clock.lap("resampling")
         if self.config.iterations > 0 and particles.weight.sum() > 0:
             particles = self._optimise(particles)
         clock.lap("optimisation")
-        return self._output(particles, stamp_ns, clock)
+        return self._output(particles, stamp_ns, clock, n_eff)
 
     def _boosted_depth(self, new: ParticleSet | None) -> float | None:
         """This frame's anchor z_b of the depth prior: the boosted hypotheses' median depth, or None
@@ -466,9 +467,10 @@ class Tracker:
         keep = np.argsort(-out.weight, kind="stable")[: len(out) - 1]
         return ParticleSet.concat([elite, out.take(keep)])
 
-    def _output(self, particles: ParticleSet, stamp_ns: int, clock) -> TrackResult:
+    def _output(self, particles: ParticleSet, stamp_ns: int, clock, n_eff: float) -> TrackResult:
         """Step 5: the estimate (mean or best particle, rotation refined), covariance, track state;
-        the set is kept best first."""
+        the set is kept best first. ``n_eff``: (6.5) of the importance weights, before resampling
+        (after it, copies of one pose would count as distinct particles)."""
         cfg = self.config
         order = np.argsort(-particles.weight, kind="stable")
         particles = particles.take(order)
@@ -500,7 +502,6 @@ class Tracker:
         if self._coasting:
             cov += coasting_covariance(pos, self._coasting, cfg.covariance_coast_fraction,
                                        np.radians(cfg.covariance_coast_deg))
-        n_eff = particles.effective_size()
         clock.lap("output")
         return TrackResult(stamp_ns, state, pos, quat, cov, best_w, n_eff, clock.ms, particles)
 
