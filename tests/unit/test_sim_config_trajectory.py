@@ -29,8 +29,8 @@ def test_shipped_scenarios_load(name):
     ("approach: {}\n1: 2\nfoo: 3\n", r"unknown key\(s\) \['1', 'foo'\]"),
     ("approach: {}\nseed: -1\n", "seed must be non-negative"),
     ("approach: {}\nstart_time_s: -5.0\n", "start_time_s must be in"),
-    ("approach: {}\nbackground: {sun_azimuth_deg: .inf}\n", "sun_azimuth_deg and sun_elevation_deg must be finite"),
-    ("approach: {}\nbackground: {sun_elevation_deg: .nan}\n", "sun_azimuth_deg and sun_elevation_deg must be finite"),
+    ("approach: {}\nbackground: {sun_azimuth_deg: .inf}\n", "background.sun_azimuth_deg: expected a finite number"),
+    ("approach: {}\nbackground: {sun_elevation_deg: .nan}\n", "background.sun_elevation_deg: expected a finite number"),
     ("approach: {speed_jitter_mps: 1.75}\n", "speed_jitter_mps must be under a quarter of the closing speed"),
 ])
 def test_bad_scenarios_are_clear_errors(tmp_path, text, match):
