@@ -42,6 +42,16 @@ def test_letterbox_box_round_trip():
     np.testing.assert_allclose(lb.to_image(lb.to_input(boxes)), boxes, atol=1e-4)
 
 
+def test_letterbox_maps_boxes_with_the_scales_of_the_whole_pixel_resize():
+    image = np.zeros((1080, 1440, 3), np.uint8)
+    image[:, 1000:] = 255  # a bright block to the right edge
+    out, lb = letterbox(image, (640, 384))
+    assert (lb.scale_x, lb.scale_y) == (512 / 1440, 384 / 1080)  # 1440 x 0.3556 = 512 px, exactly
+    columns = np.flatnonzero(out[lb.pad_y + 10, :, 0] > 127)
+    edge = lb.to_image(np.array([[columns[-1] + 1.0, 0.0, columns[-1] + 1.0, 0.0]]))[0, 0]
+    assert edge == pytest.approx(1440.0, abs=1e-3)  # the block's right edge maps back onto the image's
+
+
 def test_decode_hand_made_head_map():
     raw = np.full((5, 2, 3), -10.0, np.float32)
     raw[1:, :, :] = 0.0
@@ -105,6 +115,16 @@ def test_a_rejected_box_suppresses_nothing():
     none = lambda b: calls.append(len(b)) or np.zeros(len(b), bool)  # noqa: E731
     assert not len(select_boxes(many, rng.uniform(size=500).astype(np.float32), 0.45, 5, none))
     assert sum(calls) == 20 and max(calls) <= 5
+
+
+def test_an_accepted_box_is_not_lost_to_one_left_unchecked():
+    far = np.array([[100.0 * i, 500, 100.0 * i + 10, 510] for i in range(6)], np.float32)
+    near = np.array([[0, 0, 10, 10], [3, 0, 13, 10], [6, 0, 16, 10]], np.float32)  # R, U, A: U overlaps both
+    boxes = np.vstack([far, near])
+    scores = np.array([0.99, 0.98, 0.97, 0.96, 0.95, 0.94, 0.90, 0.85, 0.80], np.float32)
+    only_a = lambda b: np.all(b == near[2], axis=1)  # noqa: E731  (the verifier takes A alone)
+    # with limit 2, four batches of two check the six far boxes, R and A; U is never checked
+    np.testing.assert_array_equal(select_boxes(boxes, scores, 0.45, 2, only_a), [8])
 
 
 def test_window_grows_to_whole_cells_from_the_frame():

@@ -63,21 +63,28 @@ class Detections(NamedTuple):
 
 
 class Letterbox(NamedTuple):
-    """Image → network input mapping: ``x_in = scale · x_img + pad_x`` (same for y)."""
+    """Image → network input mapping: ``x_in = scale_x · x_img + pad_x``, ``y_in = scale_y · y_img +
+    pad_y``; ``scale`` is the one asked for, ``scale_x``/``scale_y`` those of the resize to whole
+    pixels (they differ from it by up to half an input pixel across the frame)."""
 
     scale: float
     pad_x: int
     pad_y: int
+    scale_x: float
+    scale_y: float
 
     def to_image(self, boxes: np.ndarray) -> np.ndarray:
         """Boxes ``(N,4)`` from network-input to image pixels."""
         pad = np.array([self.pad_x, self.pad_y, self.pad_x, self.pad_y], np.float32)
-        return (np.asarray(boxes, np.float32) - pad) / np.float32(self.scale)
+        return (np.asarray(boxes, np.float32) - pad) / self._scales()
 
     def to_input(self, boxes: np.ndarray) -> np.ndarray:
         """Boxes ``(N,4)`` from image to network-input pixels."""
         pad = np.array([self.pad_x, self.pad_y, self.pad_x, self.pad_y], np.float32)
-        return np.asarray(boxes, np.float32) * np.float32(self.scale) + pad
+        return np.asarray(boxes, np.float32) * self._scales() + pad
+
+    def _scales(self) -> np.ndarray:
+        return np.array([self.scale_x, self.scale_y, self.scale_x, self.scale_y], np.float32)
 
 
 def check_image(image) -> np.ndarray:
@@ -107,7 +114,7 @@ def letterbox(image: np.ndarray, size: tuple[int, int], multiple: int = 32,
     px, py = (pw - nw) // 2, (ph - nh) // 2
     out = cv2.copyMakeBorder(resized, py, ph - nh - py, px, pw - nw - px, border,
                              value=(PAD_VALUE,) * image.shape[2] if image.ndim == 3 else PAD_VALUE)
-    return out, Letterbox(scale, px, py)
+    return out, Letterbox(scale, px, py, nw / w, nh / h)
 
 
 def sigmoid(x: np.ndarray) -> np.ndarray:
@@ -172,8 +179,9 @@ def select_boxes(boxes: np.ndarray, scores: np.ndarray, iou: float, limit: int, 
         if accept is None or not len(new):
             return keep
         room = 4 * limit - int(checked.sum())
-        if room <= 0:
-            return keep[checked[keep]]
+        if room <= 0:  # the unchecked boxes leave, and so must their suppression of accepted ones
+            accepted = np.flatnonzero(checked & ~rejected)
+            return accepted[nms(boxes[accepted], scores[accepted], iou, limit)]
         new = new[:room]
         checked[new] = True
         rejected[new[~np.asarray(accept(boxes[new]), bool)]] = True

@@ -8,8 +8,9 @@ probability that the box holds the UAV. :class:`.detector.Detector` drops the bo
 onnxruntime.
 
 Crop of a box ``[x0,y0,x1,y1]``: the square of side ``max(context · max(w, h), min_side_px)``
-centred on the box, resampled to ``crop_px × crop_px`` (area averaging when shrinking, bilinear
-when enlarging), the frame's border pixels repeated outside it. The three numbers travel in the
+centred on the box, resampled bilinearly to ``crop_px × crop_px`` (``cv2.warpAffine`` has no
+area averaging, so a box larger than the crop is sampled, not averaged; the shipped verifier was
+trained so), the frame's border pixels repeated outside it. The three numbers travel in the
 ONNX metadata, so a model is always fed the crops it was trained on.
 """
 
@@ -40,7 +41,7 @@ def box_crops(image: np.ndarray, boxes: np.ndarray, geometry: CropGeometry = Cro
         # continuous pixel coordinates (pixel u covers [u, u+1)) → OpenCV's (pixel u at u)
         affine = np.array([[a, 0.0, a * (side / 2 - cx + 0.5) - 0.5], [0.0, a, a * (side / 2 - cy + 0.5) - 0.5]])
         out[k] = cv2.warpAffine(image, affine, (side_px, side_px),
-                                flags=cv2.INTER_AREA if a < 1 else cv2.INTER_LINEAR,
+                                flags=cv2.INTER_LINEAR,
                                 borderMode=cv2.BORDER_REPLICATE)
     return out
 
