@@ -5,7 +5,7 @@ from scipy.spatial.transform import Rotation
 from uav_landing_vision.evaluation.consistency import coverage_by_depth, error_vectors, format_coverage, nees
 
 
-def test_error_vectors_are_position_difference_and_rotation_about_camera_axes():
+def test_error_vectors_are_the_truths_offset_from_the_estimate_about_camera_axes():
     q_est = Rotation.from_euler("xyz", [10, -20, 30], degrees=True)
     turn = np.array([0.02, -0.05, 0.1])
     q_true = Rotation.from_rotvec(turn) * q_est  # q_true = exp(r) ⊗ q_est
@@ -13,7 +13,7 @@ def test_error_vectors_are_position_difference_and_rotation_about_camera_axes():
     t_est = np.array([[1.5, 1.0, 33.0], [np.nan] * 3])
     q = np.vstack([q_est.as_quat(), [np.nan] * 4])
     err = error_vectors(t_true, np.vstack([q_true.as_quat()] * 2), t_est, q)
-    np.testing.assert_allclose(err[0], [0.5, -1.0, 3.0, *turn], atol=1e-12)
+    np.testing.assert_allclose(err[0], [-0.5, 1.0, -3.0, *turn], atol=1e-12)
     assert np.all(np.isnan(err[1]))  # no estimate
     err_flipped = error_vectors(t_true[:1], -q_true.as_quat()[None], t_est[:1], q[:1])  # q and -q alike
     np.testing.assert_allclose(err_flipped[0, 3:], turn, atol=1e-12)

@@ -30,14 +30,16 @@ def depth_bin_label(depth_m: tuple[float, float] | None) -> str:
 
 
 def error_vectors(t_true, q_true, t_est, q_est) -> np.ndarray:
-    """``(F, 6)``: position error t̂ − t and rotation error log(q_true ⊗ q̂⁻¹) per frame, in the
-    order of a ROS pose covariance; NaN rows where there is no estimate."""
+    """``(F, 6)``: position error t − t̂ and rotation error log(q_true ⊗ q̂⁻¹) per frame, in the
+    order of a ROS pose covariance; NaN rows where there is no estimate. Both are the truth's
+    offset from the estimate, as the tracker's covariance takes each particle's, so the cross
+    terms of a 6-D covariance apply with the right sign."""
     t_true, t_est = np.asarray(t_true, float), np.asarray(t_est, float)
     q_true, q_est = np.asarray(q_true, float), np.asarray(q_est, float)
     out = np.full((len(t_true), 6), np.nan)
     ok = np.all(np.isfinite(t_est), axis=1) & np.all(np.isfinite(q_est), axis=1)
     if np.any(ok):
-        out[ok, :3] = t_est[ok] - t_true[ok]
+        out[ok, :3] = t_true[ok] - t_est[ok]
         out[ok, 3:] = (Rotation.from_quat(q_true[ok]) * Rotation.from_quat(q_est[ok]).inv()).as_rotvec()
     return out
 
