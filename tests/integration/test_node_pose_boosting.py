@@ -174,11 +174,26 @@ def test_calibration_the_database_was_not_made_for_is_refused(ros, small_databas
     rig.info_pub.publish(camera_info_msg(other))
     assert ros.spin_until(lambda: rig.node.counters["dropped"] == 1)
     assert "pose database was built for a camera" in rig.node.last_error
-    x, y, w, h = true_roi(0)
-    assert rig.send(frame_msg(0), detections_msg(0, [(x, y, w, h, 0.9)])) is None
-    assert "before a calibration the pose database matches" in rig.node.last_error
+    rig.image_pub.publish(frame_msg(0))
+    rig.det_pub.publish(detections_msg(0, [(*true_roi(0), 0.9)]))
+    assert ros.spin_until(lambda: rig.node.counters["received"] == rig.node.counters["detections_received"] == 1)
+    assert rig.node.counters["published"] == 0  # held until a calibration the database matches
     rig.send_info()
+    assert ros.spin_until(lambda: len(rig.out) == 1) and len(rig.out[0].poses) == M
+    assert rig.out[0].header == frame_msg(0).header
     assert rig.send(frame_msg(1), detections_msg(1, [(*true_roi(1), 0.9)])) is not None
+
+
+def test_frames_before_the_first_calibration_are_held_as_many_as_the_cache(ros, small_database):
+    rig = Rig(ros, small_database, Parameter("node.cache_size", value=2))
+    for k in range(3):
+        rig.image_pub.publish(frame_msg(k))
+        rig.det_pub.publish(detections_msg(k, [(*true_roi(k), 0.9)]))
+    assert ros.spin_until(lambda: rig.node.counters["dropped"] == 1)
+    assert rig.node.last_error.startswith(f"image stamped {stamp_ns(frame_msg(0).header.stamp)} ns: no calibration")
+    rig.send_info()
+    assert ros.spin_until(lambda: len(rig.out) == 2)
+    assert [o.header for o in rig.out] == [frame_msg(1).header, frame_msg(2).header]
 
 
 @pytest.mark.parametrize(

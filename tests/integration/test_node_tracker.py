@@ -135,9 +135,12 @@ def test_nothing_is_published_on_pose_without_an_estimate(ros, generator):
 
 def test_malformed_input_is_dropped_and_tracking_goes_on(ros, generator):
     rig = Rig(ros)
-    assert rig.send(0, frame_msg(0), boosted_msg(generator, 0)) is None
-    assert rig.node.last_error == "image before any camera/camera_info_rect"
+    rig.image_pub.publish(frame_msg(0))
+    rig.hyp_pub.publish(boosted_msg(generator, 0))
+    assert ros.spin_until(lambda: rig.node.counters["received"] == rig.node.counters["hypotheses_received"] == 1)
+    assert rig.status_of(0) is None  # held until the first calibration ...
     rig.send_info()
+    assert ros.spin_until(lambda: rig.status_of(0) is not None)  # ... then tracked
     bad = boosted_msg(generator, 1)
     bad.poses[3].orientation.w = 3.0
     rig.send(1, frame_msg(1), bad)

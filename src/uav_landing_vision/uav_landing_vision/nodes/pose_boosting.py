@@ -8,7 +8,8 @@ no poses (and a zero OBB) when there is no detection or no box in it, so that th
 tracks that frame by prediction. No GL context: the pose database is loaded once at start-up.
 
 Matching: image and detections are paired by exact ``header.stamp`` in a cache of
-``node.cache_size`` stamps, in either order of arrival; when it overflows, the oldest
+``node.cache_size`` stamps, in either order of arrival (pairs complete before a calibration the
+database matches are held, as many, until one comes); when it overflows, the oldest
 unpaired entry is dropped and counted, and so are the waiting entries more than 2 s after a new
 message's stamp (a replay started again).
 
@@ -24,6 +25,7 @@ a calibration the database was not made for is logged and its frames dropped.
 
 import math
 import sys
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -60,6 +62,7 @@ class PoseBoostingNode(LandingNode):
         self._database = _load_database(self.config)
         self._generator = None
         self._calibration = Calibration()
+        self._uncalibrated = deque()  # (image, frame, detections) paired before a usable calibration
         self._cache = StampCache(("image", "detections"), self.node_config.cache_size, RESTART_BEHIND_NS)
         self._pub = self.create_publisher(PoseHypotheses, "uav/pose_hypotheses", RELIABLE_QOS)
         self.create_subscription(CameraInfo, "camera/camera_info_rect", self._on_camera_info, IMAGE_QOS)
@@ -81,6 +84,9 @@ class PoseBoostingNode(LandingNode):
             self.drop(f"camera_info rejected: {exc}")
             return
         self.get_logger().info(f"calibration {msg.width}x{msg.height} fx={camera.fx:.1f}: pose database matches")
+        held, self._uncalibrated = self._uncalibrated, deque()
+        for pair in held:
+            self._boost(*pair)
 
     def _on_image(self, msg: Image) -> None:
         self.counters["received"] += 1
@@ -124,8 +130,12 @@ class PoseBoostingNode(LandingNode):
         return None if best is None else best[1]
 
     def _boost(self, image: Image, frame: np.ndarray, detections: DetectionArray) -> None:
-        if self._generator is None:
-            self.drop("image before a calibration the pose database matches (camera/camera_info_rect)")
+        if self._generator is None:  # held: the calibration may come a moment after the first frame
+            if len(self._uncalibrated) == self.node_config.cache_size:
+                old = self._uncalibrated.popleft()[0]
+                self.drop(f"image stamped {stamp_ns(old.header.stamp)} ns: no calibration the pose database "
+                          f"matches (camera/camera_info_rect) within {self.node_config.cache_size} frames")
+            self._uncalibrated.append((image, frame, detections))
             return
         roi = self._best_roi(detections, image.width, image.height)
         try:

@@ -13,7 +13,8 @@ calibration is used) and ``uav/pose_hypotheses``. Publishes, with the image's he
 Matching: an image and its hypotheses are paired by exact ``header.stamp`` (either order,
 cache of ``node.cache_size`` stamps). An image waits at most ``node.hypotheses_timeout_s``
 for its hypotheses, then is tracked by prediction; frames are tracked in stamp order, so a
-frame whose successor is complete is tracked at once by prediction. An image stamped more than
+frame whose successor is complete is tracked at once by prediction. Frames due before the first
+calibration are held (``node.cache_size`` of them) and tracked once it comes. An image stamped more than
 2 s before the last tracked frame starts a new time-line (a replay or clock started again): the
 track restarts, where every later frame would otherwise be dropped as out of order. Hypotheses without
 an image, late ones and malformed ones (non-finite, non-unit quaternion: the frame is then
@@ -27,6 +28,7 @@ section of ``config/tracker.yaml`` (``TrackerConfig``) and the node's own under 
 """
 
 import sys
+from collections import deque
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -86,6 +88,7 @@ class TrackerNode(LandingNode):
         self._mesh = fixed_wing_mesh("low")
         self._tracker = self._renderer = None
         self._calibration = Calibration()
+        self._uncalibrated = deque()  # (image, frame, hypotheses) due before the first calibration
         self._last_stamp = -1
         self._cache = StampCache(("image", "hypotheses"), self.node_config.cache_size)
         self._pose_pub = self.create_publisher(PoseWithCovarianceStamped, "uav/pose", RELIABLE_QOS)
@@ -112,6 +115,9 @@ class TrackerNode(LandingNode):
         self._renderer = renderer
         self._tracker = Tracker(self.config, camera, renderer)
         self.get_logger().info(f"calibration {camera.width}x{camera.height} fx={camera.fx:.1f}: tracker ready")
+        held, self._uncalibrated = self._uncalibrated, deque()
+        for frame in held:
+            self._track(*frame)
 
     def _on_image(self, msg: Image) -> None:
         self.counters["received"] += 1
@@ -181,8 +187,12 @@ class TrackerNode(LandingNode):
 
     def _track(self, image: Image, frame: np.ndarray, boosted: BoostedPoses | None) -> None:
         tracker = self._tracker
-        if tracker is None:
-            self.drop("image before any camera/camera_info_rect")
+        if tracker is None:  # held: the calibration may come a moment after the first frame
+            if len(self._uncalibrated) == self.node_config.cache_size:
+                old = self._uncalibrated.popleft()[0]
+                self.drop(f"image stamped {stamp_ns(old.header.stamp)} ns: no camera/camera_info_rect within "
+                          f"{self.node_config.cache_size} frames")
+            self._uncalibrated.append((image, frame, boosted))
             return
         if (image.width, image.height) != (self._renderer.width, self._renderer.height):
             self.drop(f"image is {image.width}x{image.height} but the calibration is {self._renderer.width}x{self._renderer.height}")
