@@ -196,3 +196,20 @@ def test_ubigaf_update_after_a_prior_wide_about_one_axis_has_no_negative_varianc
     after = f.update(s, np.array([[0.0, 0.0, np.sin(0.3), np.cos(0.3)]]))
     assert np.linalg.eigvalsh(f.covariance(after)[0]).min() >= -1e-12
     assert np.linalg.eigvalsh(after.p_q[0]).min() >= -1e-12
+
+
+def test_ubigaf_prediction_with_process_noise_far_from_isotropic_does_not_fail():
+    # Step 4 widens P_q but not P_qω: with near-uniform noise about one axis the conditional
+    # covariance of the sigma points lost definiteness and the Cholesky raised (seed 5, step 73).
+    f = make_rotation_filter(MotionFilterConfig(rotation_filter="ubigaf", process_z=(-1.0, -2000.0, -2000.0),
+                                                outlier_prob=0.12))
+    rng = np.random.default_rng(5)
+    truth = Rotation.random(random_state=rng).as_quat()[None].repeat(8, 0)
+    s = f.init(truth, np.zeros((8, 3)))
+    for _ in range(100):
+        s = f.predict(s)
+        meas = Rotation.random(8, random_state=rng).as_quat() if rng.uniform() < 0.15 else truth
+        s = f.update(s, meas)
+    q, _ = f.estimate(s)
+    assert np.all(np.isfinite(q)) and np.allclose(np.linalg.norm(q, axis=1), 1.0)
+    assert np.linalg.eigvalsh(f.covariance(s)).min() >= -1e-12

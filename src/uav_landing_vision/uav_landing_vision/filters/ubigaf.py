@@ -121,7 +121,14 @@ class UBiGaF:
         q = canon_q @ np.swapaxes(m, -1, -2)  # (E.16)
         gain = np.swapaxes(np.linalg.solve(p_q, p_qw), -1, -2)  # P_qωᵀ P_q⁻¹
         cond = p_w - gain @ p_qw  # conditional covariance of (C.11)
-        root = np.linalg.cholesky(0.5 * (cond + np.swapaxes(cond, -1, -2)) + 1e-12 * np.eye(3))
+        cond = 0.5 * (cond + np.swapaxes(cond, -1, -2))
+        try:
+            root = np.linalg.cholesky(cond + 1e-12 * np.eye(3))
+        except np.linalg.LinAlgError:
+            # Step 4 of the prediction widens P_q but leaves P_qω: with process noise far from
+            # isotropic the joint covariance, and so this one, can lose definiteness. Its negative
+            # part is dropped (only in such a step, so every other step keeps its sigma points).
+            root = np.linalg.cholesky(_without_negative_variance(cond) + 1e-12 * np.eye(3))
         w = (delta[..., None] * (canon_w @ np.swapaxes(root, -1, -2))
              + q @ np.swapaxes(gain, -1, -2) + m_w[..., None, :])  # (E.17)
         return q, w, weights
