@@ -102,10 +102,11 @@ class CameraModel:
         """Raw-image pixels ``(..., 2)`` → rectified-image pixels (same K), by OpenCV's iterative inverse."""
         uv = np.asarray(uv, dtype=float)
         flat = uv.reshape(-1, 1, 2)
-        out = cv2.undistortPoints(
-            flat, self.K, self.dist, R=None, P=self.K,
-            criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-10),
-        )
+        criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-10)
+        if hasattr(cv2, "undistortPointsIter"):  # OpenCV 4 (Ubuntu 24.04's python3-opencv is 4.6)
+            out = cv2.undistortPointsIter(flat, self.K, self.dist, None, self.K, criteria)
+        else:  # OpenCV 5 takes the criteria in undistortPoints itself
+            out = cv2.undistortPoints(flat, self.K, self.dist, R=None, P=self.K, criteria=criteria)
         return out.reshape(uv.shape)
 
     def undistortion_maps(self) -> tuple[np.ndarray, np.ndarray]:
