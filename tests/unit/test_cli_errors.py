@@ -2,7 +2,10 @@
 and nothing left behind that looks like a result."""
 
 import dataclasses
+import os
 import re
+import subprocess
+import sys
 
 import pytest
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
@@ -127,3 +130,12 @@ def test_unreported_input_errors_are_one_line_and_programming_errors_are_not_hid
     monkeypatch.setattr(score, "score_files", raising(TypeError("a bug")))
     with pytest.raises(TypeError, match="a bug"):
         main(argv)
+
+
+def test_no_opengl_is_one_line_naming_what_to_install(tmp_path):
+    env = {**os.environ, "__EGL_VENDOR_LIBRARY_FILENAMES": str(tmp_path / "none.json")}
+    run = subprocess.run([sys.executable, "-m", "uav_landing_vision.cli", "simulate", "--frames", "1", "--out",
+                          str(tmp_path / "bag")], env=env, capture_output=True, text=True, timeout=120)
+    assert run.returncode == 1 and "Traceback" not in run.stderr
+    assert run.stderr.startswith("uav-landing simulate: cannot create a headless OpenGL 4.3 context")
+    assert "apt-get install libegl1 libgl1" in run.stderr and not (tmp_path / "bag").exists()

@@ -44,7 +44,7 @@ from ..camera import CameraInfoError
 from ..config import ConfigError
 from ..model import fixed_wing_mesh
 from ..render import Renderer
-from ..render.context import gl_context
+from ..render.context import GLContextError, gl_context
 from ..tracking.upf import Tracker, TrackerConfig
 from .base import LandingNode, run_node, stamp_ns
 from .calibration import Calibration
@@ -82,7 +82,7 @@ class TrackerNode(LandingNode):
         self.node_config = self.load_config(TrackerNodeConfig, group="node")
         try:
             ctx = gl_context()
-        except RuntimeError as exc:
+        except GLContextError as exc:
             raise ConfigError(f"OpenGL: {exc}") from exc
         self.get_logger().info(f"GL_RENDERER: {ctx.info['GL_RENDERER']}; tracker {self.config.name}, M={self.config.particles}")
         self._mesh = fixed_wing_mesh("low")

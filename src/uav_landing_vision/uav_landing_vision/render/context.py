@@ -9,8 +9,14 @@ _CONTEXT: moderngl.Context | None = None
 _SHADER_DIR = Path(__file__).resolve().parent / "shaders"
 
 
+class GLContextError(OSError):
+    """No headless OpenGL 4.3 context can be made on this machine (says what to install); an
+    OSError, as a missing system library is, so the CLI reports it in one line."""
+
+
 def gl_context() -> moderngl.Context:
-    """Create on first use, then return, the process's EGL OpenGL 4.3+ context."""
+    """Create on first use, then return, the process's EGL OpenGL 4.3+ context; raises
+    :class:`GLContextError` when there is none to be had."""
     global _CONTEXT
     if _CONTEXT is None:
         cache = os.environ.get("MESA_SHADER_CACHE_DIR")
@@ -22,7 +28,7 @@ def gl_context() -> moderngl.Context:
         try:
             _CONTEXT = moderngl.create_standalone_context(backend="egl", require=430)
         except Exception as exc:
-            raise RuntimeError(
+            raise GLContextError(
                 "cannot create a headless OpenGL 4.3 context through EGL "
                 f"({exc}); install the system packages libegl1 and libgl1 "
                 "(apt-get install libegl1 libgl1), or an NVIDIA driver with EGL"
