@@ -19,5 +19,5 @@ def test_context_failure_names_the_packages(monkeypatch):
 
     monkeypatch.setattr(context, "_CONTEXT", None)
     monkeypatch.setattr(context.moderngl, "create_standalone_context", fail)
-    with pytest.raises(RuntimeError, match="libegl1 libgl1"):
+    with pytest.raises(context.GLContextError, match="libegl1 libgl1"):
         context.gl_context()
