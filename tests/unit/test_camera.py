@@ -223,3 +223,9 @@ def test_a_matrix_that_is_not_intrinsic_is_refused(k):
 def test_four_distortion_coefficients_mean_k3_zero():
     camera = CameraModel(640, 480, GENERAL.K, [-0.2, 0.05, 0.001, -0.002])
     np.testing.assert_array_equal(camera.dist, [-0.2, 0.05, 0.001, -0.002, 0.0])
+
+
+@pytest.mark.parametrize("model", ["", "plumb_bob"])
+def test_a_camera_info_without_distortion_coefficients_has_none(model):
+    camera = camera_from_info_fields(640, 480, model, [], GENERAL.K.ravel())
+    np.testing.assert_array_equal(camera.dist, np.zeros(5))

@@ -37,10 +37,10 @@ class CameraModel:
             raise ValueError(f"camera matrix K is not an intrinsic matrix [[fx,s,cx],[0,fy,cy],[0,0,1]]: {K.tolist()}")
         if K[0, 1] != 0:  # OpenCV's undistortion (points and remap tables) ignores it
             raise ValueError(f"camera matrix K has skew {K[0, 1]}; only zero skew is supported (as in plumb_bob)")
-        if dist.size == 4:
-            dist = np.append(dist, 0.0)
+        if dist.size in (0, 4):  # none (as ROS's image_geometry reads an empty D), or k3 = 0
+            dist = np.append(dist, np.zeros(5 - dist.size))
         if dist.size != 5 or not np.all(np.isfinite(dist)):
-            raise ValueError(f"distortion must be 4 or 5 finite plumb_bob coefficients, got {dist.size}")
+            raise ValueError(f"distortion must be 0, 4 or 5 finite plumb_bob coefficients, got {dist.size}")
         K.setflags(write=False)
         dist.setflags(write=False)
         object.__setattr__(self, "width", int(self.width))
