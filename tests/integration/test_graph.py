@@ -8,6 +8,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import pytest
 from geometry_msgs.msg import PoseStamped
 from sensor_msgs.msg import Image
 from test_node_common import SMALL_CAMERA, frame_entries, rgb_frame, ros, write_bag  # noqa: F401 (fixture)
@@ -74,13 +75,14 @@ def test_bag_replayed_through_undistort_in_separate_processes(ros, ros_domain_id
     assert "all nodes stopped cleanly" in output
 
 
-def test_ctrl_c_stops_every_node_cleanly(ros, ros_domain_id, tmp_path):
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGHUP], ids=["ctrl_c", "hangup"])
+def test_ctrl_c_or_a_hangup_stops_every_node_cleanly(ros, ros_domain_id, tmp_path, sig):
     log = tmp_path / "graph.log"
     graph = _graph(ros_domain_id, "--nodes", "undistort", log=log)
     try:
         assert ros.spin_until(lambda: ros.probe.count_publishers("/camera/image_rect") >= 1 or graph.poll() is not None, PROCESS_TIMEOUT_S)
         assert graph.poll() is None, log.read_text()
-        graph.send_signal(signal.SIGINT)
+        graph.send_signal(sig)
     finally:
         code = _finish(graph)
     output = log.read_text()

@@ -34,6 +34,49 @@ def test_demo_replay_waits_for_every_link_of_the_graph(tmp_path):
     assert {"/uav/pose_hypotheses", "/uav/tracker_status"} <= set(PIPELINE_TOPICS)
 
 
+def test_graph_replaying_a_bag_through_the_whole_graph_waits_for_every_link(tmp_path):
+    import argparse
+
+    import yaml
+
+    from uav_landing_vision.graph import PIPELINE_TOPICS, _plan
+    from uav_landing_vision.resources import config_path
+
+    def plan(nodes=None, *params):
+        args = argparse.Namespace(nodes=nodes, bag=tmp_path, param=list(params), drain=2.0, stop_timeout=10.0,
+                                  config=config_path("tracker.yaml").parent)
+        return dict(_plan(args)[1]["bag_player"])
+
+    assert yaml.safe_load(plan()["ready_topics"]) == list(PIPELINE_TOPICS)  # the ground truth's link among them
+    assert "ready_topics" not in plan("undistort,bag_player")  # a part of the graph: the file's setting
+    own = _plan(argparse.Namespace(nodes=None, bag=tmp_path, param=["bag_player:ready_topics=[/camera/image_raw]"],
+                                   drain=2.0, stop_timeout=10.0, config=config_path("tracker.yaml").parent))[1]
+    assert [v for k, v in own["bag_player"] if k == "ready_topics"] == ["[/camera/image_raw]"]  # the user's own only
+
+
+def test_an_interrupted_demo_fails_and_shows_no_earlier_report(tmp_path, monkeypatch, capsys):
+    import signal
+
+    from uav_landing_vision import demo, graph
+
+    class Interrupted:
+        def __init__(self, *args, **kwargs):
+            self.stopped_by_signal = None
+
+        def run(self):
+            self.stopped_by_signal = signal.SIGINT
+            return 0  # the nodes stopped cleanly: a Ctrl-C is a normal way to stop a live graph
+
+    old_report = tmp_path / "evaluation" / "tables.txt"
+    old_report.parent.mkdir()
+    old_report.write_text("an earlier run's tables")
+    monkeypatch.setattr(demo, "simulated_bag", lambda *args: tmp_path / "bags" / "bag")
+    monkeypatch.setattr(graph, "Graph", Interrupted)
+    assert main(["demo", "--out", str(tmp_path)]) == 128 + signal.SIGINT
+    assert not old_report.exists()
+    assert "interrupted (SIGINT); no report" in capsys.readouterr().err
+
+
 def test_make_detection_data_passes_the_landing_options_and_refuses_bad_ones(tmp_path, capsys):
     import json
 
@@ -47,3 +90,16 @@ def test_make_detection_data_passes_the_landing_options_and_refuses_bad_ones(tmp
     with pytest.raises(SystemExit, match="landing_negative_fraction"):
         main(["make-detection-data", "--out", str(tmp_path / "bad"), "--landing-negative-fraction", "2"])
     capsys.readouterr()
+
+
+def test_a_closed_output_does_not_stop_the_graphs_shutdown(tmp_path, monkeypatch):
+    import io
+
+    from uav_landing_vision.graph import Graph
+
+    class Closed(io.StringIO):
+        def write(self, text):
+            raise BrokenPipeError("the reader has gone")
+
+    monkeypatch.setattr("sys.stdout", Closed())
+    Graph([], tmp_path, {}, {}, stop_timeout=1.0)._say("stopping")  # raised, and aborted the escalation

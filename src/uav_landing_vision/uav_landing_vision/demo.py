@@ -9,6 +9,9 @@
    on a few frames.
 """
 
+import shutil
+import signal
+import sys
 from pathlib import Path
 
 import cv2
@@ -42,13 +45,18 @@ def _run(args) -> int:
     out = args.out.resolve()
     bag = simulated_bag(out / "bags", args.scenario, args.seed, args.frames)
     report = out / "evaluation"
+    shutil.rmtree(report, ignore_errors=True)  # a report left by an earlier run must not pass for this one's
     overrides = graph_overrides(bag, report, sequence=bag.name)
     print(f"[demo] tracking {bag} through the graph ({', '.join(GRAPH_NODES)}), ROS_DOMAIN_ID {args.domain_id}",
           flush=True)
     env = node_environment(args.domain_id)
-    code = Graph(list(GRAPH_NODES), config_path("tracker.yaml").parent, overrides, env, stop_timeout=10.0).run()
+    graph = Graph(list(GRAPH_NODES), config_path("tracker.yaml").parent, overrides, env, stop_timeout=10.0)
+    code = graph.run()
     if code != 0:
         raise SystemExit(f"uav-landing demo: the graph failed (exit {code}); see the node logs above")
+    if graph.stopped_by_signal is not None:
+        print(f"uav-landing demo: interrupted ({signal.Signals(graph.stopped_by_signal).name}); no report", file=sys.stderr)
+        return 128 + graph.stopped_by_signal
     if not (report / "tables.txt").is_file():
         raise SystemExit(f"uav-landing demo: the evaluator wrote no report in {report}")
     print((report / "tables.txt").read_text())

@@ -121,6 +121,10 @@ def _plan(args) -> tuple[list[str], dict]:
     overrides = {n: [] for n in names}
     if args.bag is not None:
         overrides[PLAYER].append(("bag", str(args.bag.resolve())))
+        if set(names) == set(GRAPH_NODES) and not any(i.startswith(f"{PLAYER}:ready_topics=") for i in args.param):
+            # The whole graph: play once every link is up, or the first frames (and their ground
+            # truth, which the evaluator then never counts) are lost to the nodes still starting.
+            overrides[PLAYER].append(("ready_topics", ready_topics_parameter()))
     for item in args.param:
         node, sep, assignment = item.partition(":")
         key, eq, value = assignment.partition("=")
@@ -146,11 +150,14 @@ class Graph:
         self.stop_timeout = stop_timeout
         self.drain_s = drain_s
         self.procs: dict[str, subprocess.Popen] = {}
+        self.stopped_by_signal: int | None = None  # the signal that stopped the run, if one did
         self._print_lock = threading.Lock()
         self._stop_requested = threading.Event()
 
     def run(self) -> int:
-        previous = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+        # SIGHUP too (a closed terminal or ssh session): the nodes have their own sessions, so
+        # without the launcher they would run on.
+        previous = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
         streams = []
         try:
             for name in self.names:
@@ -215,14 +222,21 @@ class Graph:
             proc.wait()
 
     def _on_signal(self, signum, frame) -> None:
+        self.stopped_by_signal = signum
         self._stop_requested.set()
 
     def _stream(self, name: str, proc: subprocess.Popen) -> None:
-        for line in proc.stdout:
-            with self._print_lock:
-                sys.stdout.write(f"[{name}] {line}")
-                sys.stdout.flush()
+        for line in proc.stdout:  # read to the end even if it cannot be shown: a full pipe blocks the node
+            self._write(f"[{name}] {line}")
 
     def _say(self, text: str) -> None:
+        self._write(f"[graph] {text}\n")
+
+    def _write(self, text: str) -> None:
+        """Show a log line; an output that has gone (a closed pipe) must not stop the shutdown."""
         with self._print_lock:
-            print(f"[graph] {text}", flush=True)
+            try:
+                sys.stdout.write(text)
+                sys.stdout.flush()
+            except OSError:
+                pass
