@@ -85,6 +85,18 @@ def test_report_when_the_frame_count_is_reached_lost_frames_counted(ros, tmp_pat
     assert coverage["0-8"] == ["0/2", "|", "2/2"] and coverage["8-15"] == ["2/2", "|", "2/2"]
     assert coverage["all"] == ["2/4", "|", "4/4"]
     assert len(read_pose_csv(out / "estimates.csv").stamps_ns) == 5  # frames 0, 1, 3, 4, 7
+    assert "INCOMPLETE" not in tables
+
+
+def test_a_report_of_fewer_frames_than_expected_says_so(ros, tmp_path):
+    rig = Rig(ros, tmp_path, Parameter("frames", value=20))
+    for k in range(3):
+        rig.truth_pub.publish(truth_msg(k))
+        rig.pose_pub.publish(pose_msg(k))
+    assert ros.spin_until(lambda: rig.node.counters["truth_received"] == 3 and rig.node.counters["received"] == 3)
+    out = rig.node.write()  # as on a shutdown before the sequence ended
+    tables = (out / "tables.txt").read_text()
+    assert tables.rstrip().endswith("INCOMPLETE: 3 of the 20 ground-truth frames expected were received")
 
 
 def test_without_ground_truth_no_report(ros, tmp_path):

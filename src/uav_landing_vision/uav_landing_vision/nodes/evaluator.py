@@ -15,8 +15,9 @@ evaluation command, ``ms_per_frame`` null) and ``estimates.csv`` (the poses, for
 ``uav-landing score``). ``tables.txt`` ends with how many errors lie inside the published
 covariance's 95 % region, by true depth (``evaluation.consistency``; poses whose covariance is
 not positive definite, e.g. all zeros, are left out of that count). Without any ground truth
-nothing is written (logged). Non-finite poses, non-unit quaternions and repeated stamps are
-logged, counted and dropped.
+nothing is written (logged); with fewer than ``frames`` ground-truth frames (a run stopped
+early), the report says so in its last line and the log warns. Non-finite poses, non-unit
+quaternions and repeated stamps are logged, counted and dropped.
 """
 
 import sys
@@ -118,7 +119,12 @@ class EvaluatorNode(LandingNode):
         errors = pose_errors(truth.trans, truth.quat, est.trans, est.quat)
         out = Path(cfg.out_dir)
         by_depth = format_errors_by_depth({cfg.variant: errors}, truth.trans[:, 2], cfg.sequence)
-        text = write_report(out, cfg.sequence, {cfg.variant: errors}, appendix=f"{by_depth}\n\n{self._coverage(truth, est)}")
+        appendix = f"{by_depth}\n\n{self._coverage(truth, est)}"
+        if len(truth.stamps_ns) < cfg.frames:  # stopped before the sequence ended
+            short = f"INCOMPLETE: {len(truth.stamps_ns)} of the {cfg.frames} ground-truth frames expected were received"
+            self.get_logger().warn(short)
+            appendix = f"{appendix}\n\n{short}"
+        text = write_report(out, cfg.sequence, {cfg.variant: errors}, appendix=appendix)
         save_summary(out / "summary.json", make_summary(cfg.sequence, len(truth.stamps_ns), {cfg.variant: variant_summary(errors)}))
         write_pose_csv(out / "estimates.csv", estimates)
         matched = int(np.isfinite(errors["euclidean"]).sum())
