@@ -3,8 +3,9 @@
 One process per node, parameters from the installed ``share/uav_landing_vision/config/<node>.yaml``
 (the same files ``uav-landing graph`` uses). Arguments:
 
-- ``bag:=/path/to/bag`` replays a recorded landing with ``bag_player`` and shuts the graph
-  down when the bag ends; without it the graph runs on the live camera.
+- ``bag:=/path/to/bag`` replays a recorded landing with ``bag_player`` once every link of the
+  graph is up, and shuts the graph down ``DRAIN_S`` after the bag ends (for the last frames'
+  poses); without it the graph runs on the live camera.
 - ``config_dir:=/path`` reads the parameter files from another folder.
 """
 
@@ -12,7 +13,7 @@ import os
 
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, EmitEvent, OpaqueFunction, RegisterEventHandler
+from launch.actions import DeclareLaunchArgument, EmitEvent, OpaqueFunction, RegisterEventHandler, TimerAction
 from launch.event_handlers import OnProcessExit
 from launch.events import Shutdown
 from launch.substitutions import LaunchConfiguration
@@ -22,6 +23,20 @@ PACKAGE = "uav_landing_vision"
 # The graph without the player, in start order (as uav_landing_vision.graph.GRAPH_NODES).
 NODES = ("undistort", "detector", "pose_boosting", "tracker", "gcs_bridge", "evaluator")
 PLAYER = "bag_player"
+# Every link of the graph (as uav_landing_vision.graph.PIPELINE_TOPICS): a replay waits for all of
+# them, or its first frames are lost to the nodes still loading their models.
+PIPELINE_TOPICS = (
+    "/camera/image_raw",
+    "/camera/camera_info",
+    "/camera/image_rect",
+    "/camera/camera_info_rect",
+    "/uav/detections",
+    "/uav/pose_hypotheses",
+    "/uav/pose",
+    "/uav/tracker_status",
+    "/uav/ground_truth",
+)
+DRAIN_S = 2.0  # from the end of the bag to the shutdown (as uav-landing graph --drain)
 
 
 def _nodes(context):
@@ -34,11 +49,12 @@ def _nodes(context):
 
     actions = [node(name) for name in NODES]
     if bag:
-        player = node(PLAYER, [{"bag": bag}])
+        player = node(PLAYER, [{"bag": bag, "ready_topics": list(PIPELINE_TOPICS)}])
         actions += [
             player,
             RegisterEventHandler(OnProcessExit(
-                target_action=player, on_exit=[EmitEvent(event=Shutdown(reason="bag played"))],
+                target_action=player,
+                on_exit=[TimerAction(period=DRAIN_S, actions=[EmitEvent(event=Shutdown(reason="bag played"))])],
             )),
         ]
     return actions
