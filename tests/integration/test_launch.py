@@ -8,7 +8,7 @@ import sys
 from glob import glob
 from pathlib import Path
 
-from uav_landing_vision.graph import GRAPH_NODES, PIPELINE_TOPICS, PLAYER
+from uav_landing_vision.graph import GRAPH_NODES, PLAYER
 
 PACKAGE_DIR = Path(__file__).parents[2] / "src" / "uav_landing_vision"
 LAUNCH = PACKAGE_DIR / "launch" / "landing_vision.launch.py"
@@ -39,7 +39,7 @@ def test_launch_file_compiles(tmp_path):
 def test_launch_and_graph_start_the_same_nodes_each_with_script_module_and_parameters():
     launch = _assignments(LAUNCH)
     assert set(launch["NODES"]) | {launch["PLAYER"]} == set(GRAPH_NODES) and launch["PLAYER"] == PLAYER
-    assert launch["PIPELINE_TOPICS"] == PIPELINE_TOPICS  # a replay waits for the same links as the graph's
+    assert "from uav_landing_vision.graph import PIPELINE_TOPICS" in LAUNCH.read_text()  # the graph's links
     scripts = _console_scripts()
     for name in GRAPH_NODES:
         assert scripts[name] == f"uav_landing_vision.nodes.{name}:main"

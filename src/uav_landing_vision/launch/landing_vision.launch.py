@@ -19,23 +19,14 @@ from launch.events import Shutdown
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
+# Every link of the graph: a replay waits for all of them, or its first frames are lost to the
+# nodes still loading their models.
+from uav_landing_vision.graph import PIPELINE_TOPICS
+
 PACKAGE = "uav_landing_vision"
 # The graph without the player, in start order (as uav_landing_vision.graph.GRAPH_NODES).
 NODES = ("undistort", "detector", "pose_boosting", "tracker", "gcs_bridge", "evaluator")
 PLAYER = "bag_player"
-# Every link of the graph (as uav_landing_vision.graph.PIPELINE_TOPICS): a replay waits for all of
-# them, or its first frames are lost to the nodes still loading their models.
-PIPELINE_TOPICS = (
-    "/camera/image_raw",
-    "/camera/camera_info",
-    "/camera/image_rect",
-    "/camera/camera_info_rect",
-    "/uav/detections",
-    "/uav/pose_hypotheses",
-    "/uav/pose",
-    "/uav/tracker_status",
-    "/uav/ground_truth",
-)
 DRAIN_S = 2.0  # from the end of the bag to the shutdown (as uav-landing graph --drain)
 
 
