@@ -125,6 +125,16 @@ def test_effective_particles_are_those_of_the_importance_weights_before_resampli
     assert 5.0 < spread.step(frame, 0, hypotheses(3, count=40)).effective_particles <= 40.0
 
 
+def test_a_frame_not_after_the_last_is_refused_before_anything_changes(renderer, frame):
+    tracker, results = run(renderer, frame, "C4N2", frames=3)
+    particles = tracker.particles
+    with pytest.raises(ValueError, match="not after the last one"):
+        tracker.step(frame, 2, hypotheses(7))  # repeated stamp
+    assert tracker.particles is particles and tracker.state == results[-1].state
+    tracker.reset()  # a new time-line: earlier stamps are frames again
+    assert tracker.step(frame, 0, hypotheses(8)).has_pose
+
+
 def test_same_seed_same_estimates_other_seed_differs(renderer, frame):
     _, a = run(renderer, frame, "C4N2", seed=7)
     _, b = run(renderer, frame, "C4N2", seed=7)

@@ -308,6 +308,7 @@ class Tracker:
         self._anchor: float | None = None  # this frame's boosted depth z_b (depth_prior), None: no prior
         self._turn_anchor: np.ndarray | None = None  # last refined rotation (rotation_prior), None: no prior
         self._coasting = 0  # frames in a row without boosted hypotheses (coasting_covariance)
+        self._last_stamp_ns: int | None = None  # of the last frame stepped since the last reset
         self.window = RotationWindow(config.rotation_window, 1.5 * config.motion.dt, config.rotation_window_max_turn_deg)
 
     @property
@@ -324,12 +325,19 @@ class Tracker:
         """Forget the track (the next frame with hypotheses re-initialises it)."""
         self.particles = None
         self._turn_anchor = None
+        self._last_stamp_ns = None
         self.window.reset()
         self.monitor.lost()
 
     def step(self, frame: np.ndarray, stamp_ns: int, hypotheses=None) -> TrackResult:
         """Track one rectified RGB frame. ``hypotheses``: boosted poses, best first, with
-        ``quats (k, 4)`` and ``positions (k, 3)`` (e.g. :class:`boosting.Hypotheses`), or None."""
+        ``quats (k, 4)`` and ``positions (k, 3)`` (e.g. :class:`boosting.Hypotheses`), or None.
+        Stamps must increase until the next :meth:`reset`: an earlier or repeated one raises
+        ValueError before anything changes."""
+        if self._last_stamp_ns is not None and stamp_ns <= self._last_stamp_ns:
+            raise ValueError(f"frame stamp {stamp_ns} ns is not after the last one ({self._last_stamp_ns} ns); "
+                             "reset() the tracker for a new time-line")
+        self._last_stamp_ns = int(stamp_ns)
         clock = _Clock()
         self.likelihood.prepare(frame)
         clock.lap("prepare")
