@@ -198,7 +198,11 @@ class TrackerNode(LandingNode):
             self.drop(f"image is {image.width}x{image.height} but the calibration is {self._renderer.width}x{self._renderer.height}")
             return
         stamp = stamp_ns(image.header.stamp)
-        result = tracker.step(frame, stamp, boosted)
+        try:
+            result = tracker.step(frame, stamp, boosted)
+        except ValueError as exc:  # e.g. a stamp not after the last: the core refuses it unchanged
+            self.drop(f"frame stamped {stamp} ns not tracked: {exc}")
+            return
         self._last_stamp = stamp
         header = image.header
         if result.has_pose:
