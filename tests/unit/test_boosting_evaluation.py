@@ -1,6 +1,7 @@
 """eval-boosting pieces: table statistics, closest-hypothesis selection, JSON schema of a tiny run."""
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -64,8 +65,13 @@ def test_tiny_run_has_the_json_schema(tmp_path, camera):
     assert list(cell["translation_m"]) == ["x", "y", "z"]
     assert list(cell["rotation_deg"]) == ["alpha", "beta", "gamma"]
     assert list(cell["rotation_deg"]["beta"]) == list(STAT_KEYS)
-    assert "Rotation error (degrees) at 15 m" in format_tables(result)
+    text = format_tables(result)
+    assert "Rotation error (degrees) at 15 m" in text
+    header, first = text.splitlines()[2], text.splitlines()[3]  # each k label ends over its column
+    assert [m.end() for m in re.finditer(r"\d+", header)] == [m.end() for m in re.finditer(r"-?\d+\.\d+|nan", first)]
     out = tmp_path / "e.json"
     assert main(["eval-boosting", "--samples", "2", "--distances", "5", "--top", "1", "2", "--quiet",
                  "--json", str(out)]) == 0
-    assert list(json.loads(out.read_text())["5"]) == ["1", "2"]
+    written = json.loads(out.read_text())
+    assert list(written["stats"]["5"]) == ["1", "2"]  # the statistics cover the samples with a box:
+    assert written["samples"] == 2 and 0 <= written["failures"]["5"] <= 2  # how many is written with them

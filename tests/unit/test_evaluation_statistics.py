@@ -155,8 +155,12 @@ def test_tables_csv_and_plots(tmp_path):
                               euler_zyx_to_quat(rng.normal(0, 0.1, (50, 3)))) for name in ("C4N2", "C5N5")}
     text = format_table(statistics_table(errs, ("euclidean",)), "title")
     assert "Outlier %" in text and "C5N5" in text
+    errs["C5N5"]["euclidean"][:10] = np.nan  # ten lost frames: left out of the statistics, and said so
+    errs["C5N5"]["geodesic"][:10] = np.nan
     report = write_report(tmp_path, "seq", errs)
     assert "rotation error (deg)" in report
+    assert "C4N2: statistics over 50 of 50 frames (0.0 % lost)" in report
+    assert "C5N5: statistics over 40 of 50 frames (20.0 % lost)" in report
     for name in ("translation_error.csv", "rotation_error.csv", "translation_error.png", "rotation_error.png"):
         assert (tmp_path / name).stat().st_size > 0
     header = (tmp_path / "translation_error.csv").read_text().splitlines()[0]

@@ -94,6 +94,6 @@ def _evaluate(args) -> int:
     print(format_tables(result))
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(result["stats"], indent=2))
+        args.json.write_text(json.dumps({k: result[k] for k in ("samples", "failures", "stats")}, indent=2))
         print(f"wrote {args.json}")
     return 0

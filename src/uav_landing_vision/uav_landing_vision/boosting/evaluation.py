@@ -152,7 +152,7 @@ def format_tables(result: dict) -> str:
                        f"({result['samples'] - result['failures'][dist]}/{result['samples']} samples with a box)")
             width = 8 * len(ks)
             out.append(f"{'':16}" + "".join(f"| {name:<{width - 2}}" for name in label))
-            out.append(f"{'':16}" + "".join("| " + "".join(f"{k:>8}" for k in ks)[2:] + "  " for _ in axes))
+            out.append(f"{'':16}" + "".join("| " + "".join(f"{k:>8}" for k in ks)[2:] for _ in axes))
             for key in STAT_KEYS:
                 row = ROW_NAMES[key]
                 cells = "".join(f"{per_k[k][group][a][key]:8.2f}" for a in axes for k in ks)

@@ -44,6 +44,16 @@ def format_table(stats_by_column: dict[str, dict], title: str, digits: int = 2) 
     return "\n".join(lines)
 
 
+def frames_scored(errors_by_variant: dict[str, dict[str, np.ndarray]]) -> str:
+    """How many frames each variant's statistics cover: the tables leave out the lost ones."""
+    lines = []
+    for v, err in errors_by_variant.items():
+        scored = np.isfinite(err["euclidean"]) & np.isfinite(err["geodesic"])
+        lost = 100.0 * (1.0 - scored.mean()) if scored.size else 0.0
+        lines.append(f"{v}: statistics over {int(scored.sum())} of {scored.size} frames ({lost:.1f} % lost)")
+    return "\n".join(lines)
+
+
 def format_errors_by_depth(errors_by_variant: dict[str, dict[str, np.ndarray]], depth, title: str,
                            bins=DEPTH_BINS_M) -> str:
     """Ours (the thesis pools the whole approach): per bin of true ``depth`` (edges in m) and for
@@ -155,6 +165,7 @@ def write_report(out_dir, sequence: str, errors_by_variant: dict[str, dict[str, 
         parts.append(format_table(table, f"{sequence}: {kind} error ({unit})"))
         write_table_csv(out / f"{kind}_error.csv", table)
         plot_errors(out / f"{kind}_error.png", errors_by_variant, columns, unit)
+    parts.append(frames_scored(errors_by_variant))
     text = "\n\n".join(parts + ([appendix] if appendix else []))
     (out / "tables.txt").write_text(text + "\n")
     return text
