@@ -1,5 +1,7 @@
-"""``uav-landing eval-metrics``: the §6.5 sweep of the similarity metrics (Table 6.4)."""
+"""``uav-landing eval-metrics`` (the §6.5 sweep of the similarity metrics, Table 6.4) and
+``uav-landing eval-optimisers`` (§6.6's pose optimisation protocol, Tables 6.9–6.10)."""
 
+import json
 from pathlib import Path
 
 from . import evaluate_command
@@ -19,6 +21,50 @@ def register(sub) -> None:
     p.add_argument("--tile", type=int, default=64, help="silhouette tile size in px (default: 64)")
     p.set_defaults(func=_run)
     evaluate_command.register(sub)
+
+    from .optimisation import RESAMPLERS
+    from .optimiser_evaluation import OPTIMISER_NAMES
+
+    p = sub.add_parser("eval-optimisers", help="pose optimisation schemes from boosted hypotheses (thesis §6.6, "
+                                               "Tables 6.9-6.10)")
+    p.add_argument("--samples", type=int, default=100, help="random poses per distance (default: 100)")
+    p.add_argument("--distances", type=float, nargs="+", default=[5.0, 15.0, 25.0, 35.0, 45.0],
+                   help="metres, on the optical axis (default: 5 15 25 35 45, §6.6)")
+    p.add_argument("--particles", type=int, default=100, help="pose samples M (default: 100)")
+    p.add_argument("--iterations", type=int, default=10, help="optimisation iterations N (default: 10)")
+    p.add_argument("--optimisers", default=",".join(OPTIMISER_NAMES),
+                   help=f"comma-separated subset of {','.join(OPTIMISER_NAMES)} (default: all)")
+    p.add_argument("--pfo-schedule", choices=("noise", "3phase", "iterative"), default="noise",
+                   help="PFO artificial noise (Tables 6.6-6.7; default: noise)")
+    p.add_argument("--pfo-resampling", choices=sorted(RESAMPLERS), default="reallocation",
+                   help="PFO resampling scheme (App. B; default: reallocation, as the tracker)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
+    p.add_argument("--json", type=Path, default=None, metavar="OUT", help="write the statistics as JSON")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=_run_optimisers)
+
+
+def _run_optimisers(args) -> int:
+    from ..camera import load_camera_info_yaml
+    from ..model import fixed_wing_mesh
+    from ..resources import config_path
+    from .optimiser_evaluation import OptimiserEvalConfig, evaluate_optimisers, format_tables, with_pfo
+
+    try:
+        config = with_pfo(OptimiserEvalConfig(
+            samples=args.samples, distances=tuple(args.distances), particles=args.particles,
+            iterations=args.iterations, optimisers=tuple(o.strip() for o in args.optimisers.split(",") if o.strip()),
+            seed=args.seed), args.pfo_schedule, args.pfo_resampling)
+    except ValueError as exc:
+        raise SystemExit(f"uav-landing eval-optimisers: {exc}") from None
+    camera = load_camera_info_yaml(config_path("camera.yaml"))
+    result = evaluate_optimisers(camera, fixed_wing_mesh("high"), config, progress=not args.quiet)
+    print(format_tables(result))
+    if args.json is not None:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(result, indent=2))
+        print(f"wrote {args.json}")
+    return 0
 
 
 def _run(args) -> int:
