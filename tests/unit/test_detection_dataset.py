@@ -116,6 +116,19 @@ def test_model_roi_is_clipped_to_the_image_and_none_out_of_view():
     assert model_roi(vertices, K, IDENTITY, [0.0, 0.0, 0.5], 100, 80) is not None  # filling the frame
 
 
+def test_a_model_across_the_image_edge_is_labelled_by_its_part_inside():
+    # A small wing in view near the right edge and a tall fin beyond it: the clipped hull of the
+    # whole model reaches far above and below the wing, the frame shows the wing alone.
+    vertices = np.array([[3.5, -0.2, 0], [4.4, 0, 0], [3.5, 0.2, 0], [5.5, -3, 0], [6.0, 0, 0], [5.5, 3, 0]], float)
+    faces = np.array([[0, 1, 2], [3, 4, 5]])
+    whole = model_roi(vertices, K, IDENTITY, [0.0, 0.0, 10.0], 100, 80, oriented=False)
+    seen = model_roi(vertices, K, IDENTITY, [0.0, 0.0, 10.0], 100, 80, oriented=False, faces=faces)
+    np.testing.assert_allclose(seen, [85.5, 38.5, 94.5, 42.5], atol=1e-4)  # the wing's extent
+    assert whole[3] - whole[1] > 10.0  # without the faces: sky above and below it
+    inside = model_roi(vertices[:3], K, IDENTITY, [0.0, 0.0, 10.0], 100, 80, faces=faces[:1])
+    np.testing.assert_allclose(inside, model_roi(vertices[:3], K, IDENTITY, [0.0, 0.0, 10.0], 100, 80))  # in view: as before
+
+
 def test_yolo_label_round_trip(tmp_path):
     box = np.array([100.25, 50.5, 140.75, 66.0])
     (tmp_path / "l.txt").write_text(yolo_line(box, 1280, 720) + "\n")

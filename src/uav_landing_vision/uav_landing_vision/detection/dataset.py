@@ -101,11 +101,17 @@ class DatasetConfig:
         return self.label_box == "oriented"
 
 
-def projected_outline(vertices: np.ndarray, K: np.ndarray, quat, trans, width: int, height: int) -> np.ndarray | None:
+def projected_outline(vertices: np.ndarray, K: np.ndarray, quat, trans, width: int, height: int,
+                      faces: np.ndarray | None = None) -> np.ndarray | None:
     """The outline of the model projected at the pose (rectified pinhole ``K``): the convex hull
     of its projected vertices clipped to the image, ``(N, 2)`` pixel-centre coordinates. This is
     the outline of the silhouette drawn at unlimited resolution, so wings thinner than a pixel
-    still count. None if the model is out of view or reaches behind the camera."""
+    still count. None if the model is out of view or reaches behind the camera.
+
+    A model that crosses the image's edge shows only its part inside, whose hull can be much
+    smaller than the clipped hull of the whole (sky between a wing in view and a tail out of it):
+    with the mesh's triangle ``faces`` the outline is then the hull of the faces clipped to the
+    image, as a binarised frame would give it."""
     from ..render.boxes import pose_matrices, project_points
 
     rot, t = pose_matrices(np.asarray(quat, float)[None], np.asarray(trans, float)[None])
@@ -118,6 +124,12 @@ def projected_outline(vertices: np.ndarray, K: np.ndarray, quat, trans, width: i
     area, clipped = cv2.intersectConvexConvex(hull, frame)
     if area <= 0 or clipped is None:
         return None
+    if faces is not None and area < cv2.contourArea(hull) - 1e-6:
+        pieces = [piece.reshape(-1, 2) for tri in uv[0][np.asarray(faces)].astype(np.float32)
+                  for inside, piece in [cv2.intersectConvexConvex(tri, frame)] if inside > 0 and piece is not None]
+        if not pieces:
+            return None
+        clipped = cv2.convexHull(np.concatenate(pieces))
     return clipped.reshape(-1, 2).astype(np.float64)
 
 
@@ -148,9 +160,9 @@ def outline_roi(outline: np.ndarray | None, width: int, height: int, oriented: b
 
 
 def model_roi(vertices: np.ndarray, K: np.ndarray, quat, trans, width: int, height: int,
-              oriented: bool = True) -> np.ndarray | None:
+              oriented: bool = True, faces: np.ndarray | None = None) -> np.ndarray | None:
     """The label of the model at a pose: :func:`outline_roi` of its :func:`projected_outline`."""
-    return outline_roi(projected_outline(vertices, K, quat, trans, width, height), width, height, oriented)
+    return outline_roi(projected_outline(vertices, K, quat, trans, width, height, faces), width, height, oriented)
 
 
 def oriented_box_tie(outline: np.ndarray, width: int, height: int,
@@ -342,7 +354,8 @@ class LandingFrames:
         from ..sim.simulate import scenario_camera
         from ..sim.synthesis import FrameSynthesizer
 
-        self.vertices, self.K, self.size = mesh.vertices, rectified.K, (rectified.width, rectified.height)
+        self.vertices, self.faces, self.K = mesh.vertices, mesh.faces, rectified.K
+        self.size = (rectified.width, rectified.height)
         self.oriented = cfg.oriented_labels
         self.families, self.parts = [], {}
         for fam in ("normal", "complex"):
@@ -390,7 +403,7 @@ class LandingFrames:
             raw = synth.sensor(bg, rng)
         image = cv2.remap(raw, map1, map2, cv2.INTER_LINEAR)
         box = model_roi(self.vertices, self.K, traj.quat[k], traj.trans[k], *self.size,
-                        oriented=self.oriented) if with_uav else None
+                        oriented=self.oriented, faces=self.faces) if with_uav else None
         return image, box, (traj.quat[k], traj.trans[k])
 
 
@@ -425,7 +438,7 @@ class SampleGenerator:
                 rgb, alpha = self.renderer.shaded(quat, trans, image, albedo=tuple(albedo), light_dir=light)
                 if np.count_nonzero(alpha >= cfg.coverage_threshold) >= cfg.min_visible_px:
                     box = model_roi(self.mesh.vertices, self.camera.K, quat, trans, self.camera.width,
-                                    self.camera.height, oriented=cfg.oriented_labels)
+                                    self.camera.height, oriented=cfg.oriented_labels, faces=self.mesh.faces)
                 if box is not None:
                     image = rgb
                     break

@@ -156,7 +156,7 @@ def evaluate_bag(bag, config, json_path, png_path=None, progress: bool = True, t
     map1, map2 = camera.undistortion_maps()
     poses = read_poses(bag)
     truth = {int(s): (q, t) for s, q, t in zip(poses.stamps_ns, poses.quat, poses.trans)}
-    vertices = fixed_wing_mesh("high").vertices
+    mesh = fixed_wing_mesh("high")
     detector = Detector(replace(config, score_threshold=0.01, max_detections=20))
     frames = []
     for stamp, raw in tqdm(iter_frames(bag), desc="eval-detector", unit="frame", total=len(truth),
@@ -164,7 +164,7 @@ def evaluate_bag(bag, config, json_path, png_path=None, progress: bool = True, t
         if stamp not in truth:
             raise ValueError(f"{bag}: frame {stamp} has no ground-truth pose")
         image = cv2.remap(raw, map1, map2, cv2.INTER_LINEAR)
-        outline = projected_outline(vertices, rect.K, *truth[stamp], rect.width, rect.height)
+        outline = projected_outline(mesh.vertices, rect.K, *truth[stamp], rect.width, rect.height, mesh.faces)
         frame = label_frame(outline, rect.width, rect.height, truth_box)
         t0 = time.perf_counter()
         det = detector.detect(image)
