@@ -168,6 +168,22 @@ def test_dataset_is_deterministic_by_seed_whatever_the_workers(tmp_path):
         generate(cfg, tmp_path / "c", progress=False, workers=0)
 
 
+def test_video_backgrounds_are_the_same_whatever_the_workers(tmp_path):
+    camera = CameraModel(96, 54, np.array([[82.0, 0, 48.0], [0, 82.0, 27.0], [0, 0, 1]]))
+    save_camera_info_yaml(camera, tmp_path / "cam.yaml")
+    clip = tmp_path / "ramp.avi"
+    writer = cv2.VideoWriter(str(clip), cv2.VideoWriter_fourcc(*"MJPG"), 10, (96, 54))
+    for k in range(8):  # each frame its own grey
+        writer.write(np.full((54, 96, 3), 20 + 25 * k, np.uint8))
+    writer.release()
+    cfg = DatasetConfig(count=60, seed=3, camera_info=str(tmp_path / "cam.yaml"), families=("video",), video=str(clip),
+                        negative_fraction=0.9)  # mostly backgrounds alone
+    generate(cfg, tmp_path / "one", progress=False)
+    generate(cfg, tmp_path / "two", progress=False, workers=2)
+    one, two = sorted((tmp_path / "one" / "images").glob("*.jpg")), sorted((tmp_path / "two" / "images").glob("*.jpg"))
+    assert len(one) == 60 and all(x.read_bytes() == y.read_bytes() for x, y in zip(one, two))  # chunks of 25
+
+
 def test_an_unfinished_dataset_is_continued_only_with_its_own_settings(tmp_path):
     camera = CameraModel(192, 108, np.array([[165.0, 0, 96.0], [0, 165.0, 54.0], [0, 0, 1]]))
     save_camera_info_yaml(camera, tmp_path / "cam.yaml")

@@ -263,7 +263,6 @@ class BackgroundSource:
         if "images" in cfg.families and not self.images:
             raise ValueError(f"no images ({', '.join(IMAGE_SUFFIXES)}) under {cfg.image_dir!r}")
         self.video = VideoBackground(camera, cfg.video) if "video" in cfg.families else None
-        self._video_index = -1
 
     def _bank(self, fam, background_cfg, ship_cfg, make_background, seed):
         rng = np.random.default_rng(seed)
@@ -271,14 +270,13 @@ class BackgroundSource:
         cfg = background_cfg(kind=fam, sun_azimuth_deg=float(az), sun_elevation_deg=float(el))
         return make_background(cfg, self.camera, ship_cfg(), rng)
 
-    def draw(self, rng: np.random.Generator) -> np.ndarray:
-        """A background ``(H, W, 3)`` uint8 of a randomly chosen family."""
+    def draw(self, rng: np.random.Generator, index: int) -> np.ndarray:
+        """The background ``(H, W, 3)`` uint8 of image ``index``, of a randomly chosen family."""
         fam = self.cfg.families[rng.integers(len(self.cfg.families))]
         if fam == "images":
             return self._user_image(rng)
-        if fam == "video":  # footage is read in order; each draw takes the next frame
-            self._video_index += 1
-            return self.video.frame(self._video_index, 0.0)
+        if fam == "video":  # frame ``index`` of the footage (looping): the same in any worker and on resume
+            return self.video.frame(index, 0.0)
         bank = self.banks[fam][rng.integers(len(self.banks[fam]))]
         bank.jitter_rng = rng  # sea jitter from this image's generator: image i depends on (seed, i) only
         yaw, elev, roll = np.radians(rng.uniform([-180, -8, -10], [180, 30, 10]))
@@ -429,7 +427,7 @@ class SampleGenerator:
             with_uav = not (cfg.landing_negative_fraction and rng.random() < cfg.landing_negative_fraction)
             image, box, _ = self.landing.sample(rng, with_uav)
             return photometric(image, rng, cfg), box
-        image, box = self.backgrounds.draw(rng), None
+        image, box = self.backgrounds.draw(rng, index), None
         if rng.random() >= cfg.negative_fraction:
             albedo = np.clip(rng.uniform(0.15, 0.95) + rng.uniform(-0.05, 0.05, 3), 0, 1)
             light = rng.standard_normal(3) + np.array([0.0, -1.0, 0.0])
