@@ -169,6 +169,24 @@ def test_runtime_on_the_exported_model(exported):
         det.detect(frame.astype(np.float32))
 
 
+def test_training_images_are_scaled_as_the_runtime_scales_a_frame(tmp_path):
+    import json
+
+    import cv2
+
+    from uav_landing_vision.detection.train import LetterboxedImages
+
+    (tmp_path / "images").mkdir()
+    (tmp_path / "labels").mkdir()
+    (tmp_path / "dataset.json").write_text(json.dumps({"width": 96, "height": 54}))
+    cv2.imwrite(str(tmp_path / "images" / "000000.jpg"), np.full((54, 96, 3), 128, np.uint8))
+    (tmp_path / "labels" / "000000.txt").write_text("0 0.5 0.5 0.25 0.2\n")  # 24 x 10.8 px at the centre
+    tensor, boxes = LetterboxedImages([(str(tmp_path), 0)], (192, 128), seed=0, augment=False)[0]
+    _, runtime = letterbox(np.zeros((54, 96, 3), np.uint8), (192, 128), max_scale=min(192 / 96, 128 / 54))
+    assert tuple(tensor.shape) == (3, 128, 192) and runtime.scale == 2.0  # a small frame is enlarged at run time
+    np.testing.assert_allclose(boxes.numpy(), runtime.to_input(np.array([[36.0, 21.6, 60.0, 32.4]])), atol=1e-4)
+
+
 def test_training_uses_every_folder_and_resumes_only_with_its_own_settings(tmp_path):
     from uav_landing_vision.camera import CameraModel, save_camera_info_yaml
     from uav_landing_vision.detection.dataset import DatasetConfig, generate

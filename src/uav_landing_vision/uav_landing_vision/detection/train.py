@@ -78,7 +78,9 @@ class LetterboxedImages(torch.utils.data.Dataset):
         bgr = cv2.imread(str(Path(root) / "images" / f"{i:06d}.jpg"), cv2.IMREAD_COLOR)
         if bgr is None:
             raise FileNotFoundError(f"cannot read image {i} of {root}")
-        img, lb = letterbox(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), self.input_size)
+        h, w = bgr.shape[:2]  # scaled to fit the input, smaller frames enlarged, as the runtime does a frame
+        img, lb = letterbox(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), self.input_size,
+                            max_scale=min(self.input_size[0] / w, self.input_size[1] / h))
         boxes = lb.to_input(read_labels(Path(root) / "labels" / f"{i:06d}.txt", *self.sizes[root]))
         rng = np.random.default_rng(np.random.SeedSequence([self.seed, self.epoch, self.folders[root], i]))
         if self.augment and rng.random() < 0.5:
