@@ -75,6 +75,18 @@ def silhouette_roi(alpha: np.ndarray):
     return int(xs.min()), int(ys.min()), int(xs.max() + 1 - xs.min()), int(ys.max() + 1 - ys.min())
 
 
+def rendered_hypotheses(renderer, db: PoseDatabase, camera: CameraModel, quat, trans, background, sun, albedo,
+                        fast: FastConfig, k: int, centre_offset: bool = True):
+    """The UAV at ``(quat, trans)`` shaded over ``background`` and boosting's ``k`` hypotheses
+    from its silhouette's box (grown as the boosting stage grows ROIs): ``(frame, hypotheses)``,
+    the hypotheses None when FAST finds no box."""
+    frame, alpha = renderer.shaded(quat, trans, background, albedo=albedo, light_dir=sun)
+    roi = silhouette_roi(alpha)
+    obb = None if roi is None else obb_from_frame(frame, roi, fast, HypothesisConfig.roi_margin,
+                                                  HypothesisConfig.roi_pad_px)
+    return frame, None if obb is None else hypotheses_from_obb(db, obb, k, camera, centre_offset)
+
+
 def closest_errors(q_true, t_true, quats, positions, top) -> tuple[np.ndarray, np.ndarray]:
     """Per top-k, translation ``(len(top), 3)`` and Euler ``(len(top), 3)`` (rad) errors of the
     hypothesis with the smallest geodesic error among the first k.
@@ -116,14 +128,10 @@ def evaluate_boosting(camera: CameraModel, mesh, config: BoostingEvalConfig = Bo
         r_err = np.full((config.samples, len(top), 3), np.nan)
         for i in tqdm(range(config.samples), desc=f"{distance:g} m", disable=not progress, file=sys.stderr,
                       mininterval=2.0):
-            rgb, alpha = renderer.shaded(quats[i], trans[i], backgrounds[i % len(backgrounds)],
-                                         albedo=albedo, light_dir=sun)
-            roi = silhouette_roi(alpha)
-            obb = None if roi is None else obb_from_frame(rgb, roi, config.fast, HypothesisConfig.roi_margin,
-                                                          HypothesisConfig.roi_pad_px)
-            if obb is None:
+            _, hyp = rendered_hypotheses(renderer, db, camera, quats[i], trans[i], backgrounds[i % len(backgrounds)],
+                                         sun, albedo, config.fast, kmax, config.centre_offset)
+            if hyp is None:
                 continue
-            hyp = hypotheses_from_obb(db, obb, kmax, camera, config.centre_offset)
             t_err[i], r_err[i] = closest_errors(quats[i], trans[i], hyp.quats, hyp.positions, top)
         ok = np.isfinite(t_err[:, 0, 0])
         failures[f"{distance:g}"] = int(np.sum(~ok))

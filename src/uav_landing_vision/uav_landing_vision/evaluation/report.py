@@ -44,13 +44,23 @@ def format_table(stats_by_column: dict[str, dict], title: str, digits: int = 2) 
     return "\n".join(lines)
 
 
+def lost_frames(errors: dict[str, np.ndarray]) -> np.ndarray:
+    """The frames without an estimate (no translation or no rotation error), as a mask."""
+    return ~np.isfinite(errors["euclidean"]) | ~np.isfinite(errors["geodesic"])
+
+
+def lost_frames_pct(errors: dict[str, np.ndarray]) -> float:
+    lost = lost_frames(errors)
+    return float(100.0 * lost.mean()) if lost.size else 0.0
+
+
 def frames_scored(errors_by_variant: dict[str, dict[str, np.ndarray]]) -> str:
     """How many frames each variant's statistics cover: the tables leave out the lost ones."""
     lines = []
     for v, err in errors_by_variant.items():
-        scored = np.isfinite(err["euclidean"]) & np.isfinite(err["geodesic"])
-        lost = 100.0 * (1.0 - scored.mean()) if scored.size else 0.0
-        lines.append(f"{v}: statistics over {int(scored.sum())} of {scored.size} frames ({lost:.1f} % lost)")
+        lost = lost_frames(err)
+        lines.append(f"{v}: statistics over {int((~lost).sum())} of {lost.size} frames "
+                     f"({lost_frames_pct(err):.1f} % lost)")
     return "\n".join(lines)
 
 
@@ -105,11 +115,10 @@ def plot_errors(path, errors_by_variant: dict[str, dict[str, np.ndarray]], colum
 
 def variant_summary(errors: dict[str, np.ndarray], ms_per_frame: float | None = None) -> dict:
     """One variant's entry of the JSON summary."""
-    lost = ~np.isfinite(errors["euclidean"]) | ~np.isfinite(errors["geodesic"])
     return {
         "translation_m": error_statistics(errors["euclidean"]),
         "rotation_deg": error_statistics(errors["geodesic"]),
-        "lost_frames_pct": float(100.0 * lost.mean()) if lost.size else 0.0,
+        "lost_frames_pct": lost_frames_pct(errors),
         "ms_per_frame": None if ms_per_frame is None else float(ms_per_frame),
     }
 

@@ -92,6 +92,15 @@ class LandingNode(Node):
             self.drop(f"camera_info rejected: {exc}")
             return False
 
+    def hold(self, held, frame: tuple, limit: int, waiting_for: str) -> None:
+        """Keep ``frame`` (its first item the Image) in the deque ``held`` until the node can use it
+        (e.g. the calibration comes a moment after the first image); beyond ``limit`` frames the
+        oldest is dropped, saying what it waited for."""
+        if len(held) == limit:
+            old = held.popleft()[0]
+            self.drop(f"image stamped {stamp_ns(old.header.stamp)} ns: {waiting_for} within {limit} frames")
+        held.append(frame)
+
     def drop(self, reason: str) -> None:
         """Log why a message is dropped (at most once a second per node) and count it."""
         self.counters["dropped"] += 1

@@ -130,12 +130,9 @@ class PoseBoostingNode(LandingNode):
         return None if best is None else best[1]
 
     def _boost(self, image: Image, frame: np.ndarray, detections: DetectionArray) -> None:
-        if self._generator is None:  # held: the calibration may come a moment after the first frame
-            if len(self._uncalibrated) == self.node_config.cache_size:
-                old = self._uncalibrated.popleft()[0]
-                self.drop(f"image stamped {stamp_ns(old.header.stamp)} ns: no calibration the pose database "
-                          f"matches (camera/camera_info_rect) within {self.node_config.cache_size} frames")
-            self._uncalibrated.append((image, frame, detections))
+        if self._generator is None:
+            self.hold(self._uncalibrated, (image, frame, detections), self.node_config.cache_size,
+                      "no calibration the pose database matches (camera/camera_info_rect)")
             return
         roi = self._best_roi(detections, image.width, image.height)
         try:

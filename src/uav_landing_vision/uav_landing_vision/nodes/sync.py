@@ -42,12 +42,12 @@ class StampCache:
 
     def add(self, name: str, stamp_ns: int, item) -> tuple[Entry | None, list[Entry]]:
         """Store ``item`` of input ``name``; returns (the entry it completed, or None, and the
-        entries evicted, by a new time-line or because the cache overflowed, oldest first). A repeated (name, stamp)
-        raises :class:`RepeatedStampError` and keeps the earlier item: which of the two the other
-        input's message belongs to cannot be told."""
+        entries evicted, by a new time-line or because the cache overflowed, oldest first). A
+        repeated (name, stamp) raises :class:`RepeatedStampError` and keeps the earlier item:
+        which of the two the other input's message belongs to cannot be told."""
         if name not in self.inputs:
             raise KeyError(f"unknown input {name!r}")
-        if name in self._entries.get(stamp_ns, Entry(stamp_ns)).items:
+        if stamp_ns in self._entries and name in self._entries[stamp_ns].items:
             raise RepeatedStampError(f"a second {name} stamped {stamp_ns} ns while the first waits for its pair")
         evicted = []
         if self.restart_behind_ns is not None:

@@ -187,12 +187,9 @@ class TrackerNode(LandingNode):
 
     def _track(self, image: Image, frame: np.ndarray, boosted: BoostedPoses | None) -> None:
         tracker = self._tracker
-        if tracker is None:  # held: the calibration may come a moment after the first frame
-            if len(self._uncalibrated) == self.node_config.cache_size:
-                old = self._uncalibrated.popleft()[0]
-                self.drop(f"image stamped {stamp_ns(old.header.stamp)} ns: no camera/camera_info_rect within "
-                          f"{self.node_config.cache_size} frames")
-            self._uncalibrated.append((image, frame, boosted))
+        if tracker is None:
+            self.hold(self._uncalibrated, (image, frame, boosted), self.node_config.cache_size,
+                      "no camera/camera_info_rect")
             return
         if (image.width, image.height) != (self._renderer.width, self._renderer.height):
             self.drop(f"image is {image.width}x{image.height} but the calibration is {self._renderer.width}x{self._renderer.height}")

@@ -2,6 +2,7 @@
 ``uav-landing eval-optimisers`` (§6.6's pose optimisation protocol, Tables 6.9–6.10)."""
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 from . import evaluate_command
@@ -48,13 +49,14 @@ def _run_optimisers(args) -> int:
     from ..camera import load_camera_info_yaml
     from ..model import fixed_wing_mesh
     from ..resources import config_path
-    from .optimiser_evaluation import OptimiserEvalConfig, evaluate_optimisers, format_tables, with_pfo
+    from .optimisation import SECTION_6_6_NOISE
+    from .optimiser_evaluation import OptimiserEvalConfig, evaluate_optimisers, format_tables
 
     try:
-        config = with_pfo(OptimiserEvalConfig(
+        config = OptimiserEvalConfig(
             samples=args.samples, distances=tuple(args.distances), particles=args.particles,
             iterations=args.iterations, optimisers=tuple(o.strip() for o in args.optimisers.split(",") if o.strip()),
-            seed=args.seed), args.pfo_schedule, args.pfo_resampling)
+            pfo=replace(SECTION_6_6_NOISE, schedule=args.pfo_schedule, resampling=args.pfo_resampling), seed=args.seed)
     except ValueError as exc:
         raise SystemExit(f"uav-landing eval-optimisers: {exc}") from None
     camera = load_camera_info_yaml(config_path("camera.yaml"))

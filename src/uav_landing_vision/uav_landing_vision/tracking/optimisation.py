@@ -433,3 +433,12 @@ class GAbF:
         bpos, bquat = _jitter(pop.take([best]), *cfg.sigmas(f"best_{phase}"), rng)
         pos[best], quat[best] = bpos[0], bquat[0]
         return pop.with_pose(pos, quat)
+
+
+OPTIMISERS = {"pfo": PFO, "pso": PSO, "constricted_pso": ConstrictedPSO, "gabf": GAbF}  # §5.5
+
+
+def make_optimiser(name: str, pfo: PFOConfig):
+    """The optimiser ``name`` (a key of :data:`OPTIMISERS`): PFO with ``pfo``, the others with
+    their own settings."""
+    return PFO(pfo) if name == "pfo" else OPTIMISERS[name]()

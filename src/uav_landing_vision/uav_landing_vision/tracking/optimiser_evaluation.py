@@ -16,16 +16,16 @@ the tables' "covariances" read as standard deviations, as everywhere in the proj
 """
 
 import sys
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
 from ..evaluation.statistics import ROW_NAMES, STAT_KEYS, error_statistics
 from ..geometry import euler_error, quat_normalise
-from .optimisation import PFO, PSO, SECTION_6_6_NOISE, ConstrictedPSO, GAbF, PFOConfig
+from .optimisation import OPTIMISERS, SECTION_6_6_NOISE, PFOConfig, make_optimiser
 from .particles import ParticleSet
 
-OPTIMISER_NAMES = ("pfo", "pso", "constricted_pso", "gabf")
+OPTIMISER_NAMES = tuple(OPTIMISERS)
 COLUMN_NAMES = {"boosting": "Boosting", "pfo": "PFO", "pso": "PSO", "constricted_pso": "Mod. PSO", "gabf": "GAbF"}
 
 
@@ -51,11 +51,6 @@ class OptimiserEvalConfig:
             raise ValueError(f"optimisers must be among {OPTIMISER_NAMES}, got {self.optimisers}")
 
 
-def make_optimiser(name: str, pfo: PFOConfig):
-    """The optimiser ``name`` with §6.6's settings (PFO with ``pfo``, the others' own defaults)."""
-    return PFO(pfo) if name == "pfo" else {"pso": PSO, "constricted_pso": ConstrictedPSO, "gabf": GAbF}[name]()
-
-
 def evaluate_optimisers(camera, mesh, config: OptimiserEvalConfig = OptimiserEvalConfig(), *,
                         database_path=None, progress: bool = True) -> dict:
     """Run the evaluation: ``{"stats": {dist: {method: {"translation_m": .., "rotation_deg": ..}}},
@@ -63,9 +58,8 @@ def evaluate_optimisers(camera, mesh, config: OptimiserEvalConfig = OptimiserEva
     from tqdm import tqdm
 
     from ..boosting.database import DEFAULT_FILE, PoseDatabase, sample_orientations
-    from ..boosting.evaluation import BACKGROUND_FRAMES, normal_backgrounds, silhouette_roi
-    from ..boosting.hypotheses import HypothesisConfig, hypotheses_from_obb
-    from ..boosting.obb import FastConfig, obb_from_frame
+    from ..boosting.evaluation import BACKGROUND_FRAMES, normal_backgrounds, rendered_hypotheses
+    from ..boosting.obb import FastConfig
     from ..model import fixed_wing_mesh
     from ..render import Renderer
     from ..resources import model_path
@@ -90,14 +84,10 @@ def evaluate_optimisers(camera, mesh, config: OptimiserEvalConfig = OptimiserEva
         scores = {m: np.full(config.samples, np.nan) for m in methods}
         for i in tqdm(range(config.samples), desc=f"{distance:g} m", disable=not progress, file=sys.stderr,
                       mininterval=2.0):
-            frame, alpha = shading.shaded(quats[i], trans, backgrounds[i % len(backgrounds)], albedo=albedo,
-                                          light_dir=sun)
-            roi = silhouette_roi(alpha)
-            obb = None if roi is None else obb_from_frame(frame, roi, FastConfig(), HypothesisConfig.roi_margin,
-                                                          HypothesisConfig.roi_pad_px)
-            if obb is None:
+            frame, hyp = rendered_hypotheses(shading, db, camera, quats[i], trans, backgrounds[i % len(backgrounds)],
+                                             sun, albedo, FastConfig(), config.particles)
+            if hyp is None:
                 continue
-            hyp = hypotheses_from_obb(db, obb, config.particles, camera)
             likelihood.prepare(frame)
             start = ParticleSet.from_poses(hyp.positions, quat_normalise(hyp.quats))
             start = start.with_weight(likelihood(start))
@@ -142,8 +132,3 @@ def format_tables(result: dict) -> str:
         out.append(f"Mean likelihood of the estimate at {dist} m: {means}")
         out.append("")
     return "\n".join(out)
-
-
-def with_pfo(config: OptimiserEvalConfig, schedule: str, resampling: str) -> OptimiserEvalConfig:
-    """``config`` with PFO's schedule and resampling scheme replaced."""
-    return replace(config, pfo=replace(config.pfo, schedule=schedule, resampling=resampling))

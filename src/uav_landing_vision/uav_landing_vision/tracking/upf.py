@@ -51,7 +51,7 @@ from ..filters.motion import MotionFilterConfig
 from ..geometry import geodesic_angle, omega_quat, quat_multiply, quat_normalise
 from .likelihood import LIKELIHOODS, ColourConfig, make_likelihood
 from .motion_bank import MotionBank
-from .optimisation import PFO, PSO, ConstrictedPSO, GAbF, PFOConfig, evaluate
+from .optimisation import OPTIMISERS, PFOConfig, evaluate, make_optimiser
 from .particles import ParticleSet
 from .refinement import RotationRefinement, RotationRefinementConfig
 from .resampling import RESAMPLERS, fixed_size, resample
@@ -61,7 +61,6 @@ from .track_state import TrackMonitor, TrackState, TrackStateConfig
 ROTATION_FILTER = {"C3": "ukf", "C4": "ubif", "C5": "ubigaf"}  # Table 6.11
 COMBINATIONS = ("C1", "C2", "C3", "C4", "C5")
 ESTIMATES = ("best", "mean")  # published pose: the best particle (thesis) or the weighted mean (ours)
-OPTIMISERS = {"pfo": None, "pso": PSO, "constricted_pso": ConstrictedPSO, "gabf": GAbF}
 _VARIANT = re.compile(r"^C([1-5])N(\d+)$")
 
 
@@ -274,10 +273,6 @@ def coasting_covariance(pos: np.ndarray, frames: int, range_fraction: float, sig
     return np.diag(np.repeat([s_pos**2, (frames * sigma_rad) ** 2], 3))
 
 
-def _optimiser(cfg: TrackerConfig):
-    return PFO(cfg.pfo) if cfg.optimiser == "pfo" else OPTIMISERS[cfg.optimiser]()
-
-
 class Tracker:
     """The tracking core of the ``tracker`` node; one per process (it owns the renderer's use).
 
@@ -297,7 +292,7 @@ class Tracker:
                              f"renders ({config.particles} particles, {config.refine.candidates} + 1 refinement poses)")
         self.config = config
         self.likelihood = make_likelihood(config.metric, renderer, config.colour if config.metric == "colour" else None)
-        self.optimiser = _optimiser(config)
+        self.optimiser = make_optimiser(config.optimiser, config.pfo)
         self.rng = np.random.default_rng(np.random.SeedSequence(config.seed))
         self.refinement = RotationRefinement(config.refine)
         self._refine_rng = np.random.default_rng(np.random.SeedSequence(config.seed).spawn(1)[0])
