@@ -3,9 +3,12 @@
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
+import yaml
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from rclpy.parameter import Parameter
+from scipy.spatial.transform import Rotation
 from test_node_common import ros  # noqa: F401 (fixture)
 
 from uav_landing_msgs.msg import LandingGuidance, TrackerStatus
@@ -54,24 +57,57 @@ class Rig:
         return msg
 
 
+def shipped_params() -> dict:
+    return yaml.safe_load(PARAMS.read_text())["gcs_bridge"]["ros__parameters"]
+
+
+def landing_position(p_cam) -> np.ndarray:
+    """Oracle (scipy, the parameter file's numbers): the landing-frame position of a camera-frame point.
+
+    Optical axes in the mount frame: z forward → x, x right → y, y down → z; the mount turned by
+    its Z-Y-X roll, pitch, yaw in the ship frame; the landing frame is the ship frame moved to the net.
+    """
+    params = shipped_params()
+    roll, pitch, yaw = np.radians(params["camera"]["rpy_deg"])
+    mount = Rotation.from_euler("ZYX", [yaw, pitch, roll]).as_matrix()
+    optical_in_mount = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    return (mount @ optical_in_mount @ np.asarray(p_cam, float) + np.asarray(params["camera"]["position_m"])
+            - np.asarray(params["net_position_m"]))
+
+
 def test_a_tracked_pose_gives_guidance_and_mavlink(ros, mavlink_receiver):
     rig = Rig(ros, mavlink_receiver.port.getsockname()[1])
     rig.send_status(TrackerStatus.TRACKING)
+    sent_stamps = []
 
     def tracked():  # a fresh pose per step: the bridge ignores poses older than stale_timeout_s
-        rig.pose_pub.publish(rig.pose())
+        msg = rig.pose()
+        sent_stamps.append(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
+        rig.pose_pub.publish(msg)
+        rig.status_pub.publish(TrackerStatus(header=msg.header, state=TrackerStatus.TRACKING))  # as the tracker does
         return any(math.isfinite(g.range) for g in rig.guidance)
 
     assert ros.spin_until(tracked)
     g = next(g for g in rig.guidance if math.isfinite(g.range))
     assert g.header.frame_id == "landing" and g.stage == LandingGuidance.APPROACH
-    assert 25.0 < g.range < 40.0
+    stamp = g.header.stamp.sec * 1_000_000_000 + g.header.stamp.nanosec
+    assert stamp in sent_stamps, (stamp, sent_stamps)  # the image time of a pose sent, to the ns, not the tick's
+    cone = shipped_params()["cone"]
+    assert cone["approach_course_deg"] == 0.0  # from astern: the landing axis is −x, starboard +y, down +z
+    x, y, z = landing_position([0.5, -2.0, 30.0])  # rig.pose()'s position
+    glide_slope = math.radians(cone["glide_slope_deg"])
+    assert g.range == pytest.approx(math.sqrt(x * x + y * y + z * z), abs=1e-9)  # 25.17 m
+    assert g.glide_slope_angle == pytest.approx(math.atan2(-z, math.hypot(x, y)), abs=1e-9)  # 8.1° above the net
+    assert g.glide_slope_error == pytest.approx(math.atan2(-z, math.hypot(x, y)) - glide_slope, abs=1e-9)
+    assert g.lateral_angle == pytest.approx(math.atan2(y, -x), abs=1e-9)  # 1.1° to port
+    assert g.inside_cone
     odometry = None
     for _ in range(100):
         odometry = mavlink_receiver.recv_match(type="ODOMETRY", blocking=True, timeout=0.1)
         if odometry is not None:
             break
-    assert odometry is not None and math.isclose(math.dist((odometry.x, odometry.y, odometry.z), (0, 0, 0)), g.range, rel_tol=1e-4)
+    assert odometry is not None
+    assert [odometry.x, odometry.y, odometry.z] == pytest.approx([x, y, z], abs=1e-5)  # float32 on the wire
     assert rig.node.counters["dropped"] == 0
 
 

@@ -46,7 +46,7 @@ class RecordingSender:
 def feed(bridge, t, p_land, rpy=(0.0, -GAMMA, 0.0), state=TRACKER_TRACKING):
     cam = CONFIG.camera
     p_cam, q_cam = camera_pose_from_truth(cam.position_m, cam.rpy, CONFIG.net_position_m, p_land, rpy)
-    bridge.on_tracker_state(state)
+    bridge.on_tracker_state(state, t)
     return bridge.on_pose(t, p_cam, q_cam, COV, now_s=t + 0.02)
 
 
@@ -60,7 +60,7 @@ def fly(bridge, path, t_end, frame_dt=1 / 30, ticks_every=3, latency=0.03):
         if isinstance(sample, np.ndarray):
             feed(bridge, t, sample)
         elif sample is not None:
-            bridge.on_tracker_state(sample)
+            bridge.on_tracker_state(sample, t)
         if k % ticks_every == 0:
             out.append((t, bridge.tick(t + latency)))
     return out
@@ -234,10 +234,21 @@ def test_each_pose_is_sent_once_and_at_most_at_the_rate(bridge):
     assert min(np.diff(stamps)) >= 0.1 - 1e-9
 
 
+def test_a_timer_a_few_ms_late_does_not_hold_fresh_poses_back(bridge):
+    """Ticks at rate_hz, each late by 0–10 ms (an rclpy timer's spread): every tick sends the newest pose."""
+    jitter = np.random.default_rng(0).uniform(0.0, 0.01, 100)
+    for k in range(100):
+        t = 1.0 + k / 30
+        feed(bridge, t, on_axis(40.0 - t))
+        if k % 3 == 2:
+            assert "ODOMETRY" in bridge.tick(t + 0.01 + jitter[k]).sent, k
+    assert len(bridge.sender.poses) == 33
+
+
 def test_stale_and_out_of_order_poses_are_ignored(bridge):
     cam = CONFIG.camera
     p_cam, q_cam = camera_pose_from_truth(cam.position_m, cam.rpy, CONFIG.net_position_m, on_axis(40.0), (0, 0, 0))
-    bridge.on_tracker_state(TRACKER_TRACKING)
+    bridge.on_tracker_state(TRACKER_TRACKING, 2.0)
     assert not bridge.on_pose(1.0, p_cam, q_cam, COV, now_s=1.0 + CONFIG.stale_timeout_s + 0.01)
     assert bridge.on_pose(2.0, p_cam, q_cam, COV, now_s=2.0)
     assert not bridge.on_pose(1.5, p_cam, q_cam, COV, now_s=2.0)
@@ -258,27 +269,28 @@ def test_pose_stamped_ahead_of_the_clock_is_refused_and_does_not_shut_out_later_
     # 40 m to starboard: outside the cone, so LAND ends at the next tick
     p_cam, q_cam = camera_pose(on_axis(30.0, lateral_m=40.0))
     assert bridge.on_pose(4.6, p_cam, q_cam, COV, now_s=4.62)
+    bridge.on_tracker_state(TRACKER_TRACKING, 4.6)
     assert bridge.tick(4.63).guidance.stage == Stage.GO_AROUND
     with pytest.raises(ValueError, match="finite time >= 0"):
         bridge.on_pose(-0.05, p_cam, q_cam, COV, now_s=4.7)
 
 
 def test_a_clock_that_jumps_back_drops_the_held_pose(bridge):
-    bridge.on_tracker_state(TRACKER_TRACKING)
+    bridge.on_tracker_state(TRACKER_TRACKING, 500.0)
     p_cam, q_cam = camera_pose(on_axis(40.0))
     assert bridge.on_pose(500.0, p_cam, q_cam, COV, now_s=500.0)
     assert bridge.tick(500.01).guidance.stage == Stage.APPROACH
     assert bridge.tick(10.0).guidance.stage == Stage.LOITER  # replay restarted: no fresh pose
     assert bridge.on_pose(10.0, p_cam, q_cam, COV, now_s=10.0)
-    bridge.on_tracker_state(TRACKER_LOST)
-    bridge.on_tracker_state(TRACKER_TRACKING)
+    bridge.on_tracker_state(TRACKER_LOST, 10.0)
+    bridge.on_tracker_state(TRACKER_TRACKING, 10.0)
     assert bridge.on_pose(9.0, p_cam, q_cam, COV, now_s=9.0)  # LOST forgets the newest stamp too
 
 
 def test_a_loss_between_two_ticks_goes_around_even_if_the_track_is_back(bridge):
     fly(bridge, approach(), t_end=(120.0 - 20.0) / 20.0)  # LAND at 20 m
     assert bridge.stage == Stage.LAND
-    bridge.on_tracker_state(TRACKER_LOST)  # lost and re-acquired within one tick period
+    bridge.on_tracker_state(TRACKER_LOST, 5.0)  # lost and re-acquired within one tick period
     for k, state in enumerate([TRACKER_ACQUIRING, TRACKER_ACQUIRING, TRACKER_TRACKING]):
         t = 5.0 + (k + 1) / 30
         assert feed(bridge, t, on_axis(range_at(t)), state=state)
@@ -287,6 +299,34 @@ def test_a_loss_between_two_ticks_goes_around_even_if_the_track_is_back(bridge):
     assert result.guidance.stage == Stage.GO_AROUND and "ODOMETRY" not in result.sent
     assert len(bridge.sender.poses) == sent and math.isnan(result.guidance.range)
     assert bridge.tick(5.2).sent == ("ODOMETRY",)  # the next tick sends the new track's pose
+
+
+def test_a_pose_is_sent_only_once_a_status_of_its_frame_says_tracking(bridge):
+    """The tracker publishes each frame's pose before its status; after a silent restart of its
+    track (new calibration, new time-line) that status says ACQUIRING, while the latest one the
+    bridge holds still says TRACKING."""
+    fly(bridge, approach(), t_end=(120.0 - 30.0) / 20.0)  # LAND at 30 m, last pose at 4.5 s
+    assert bridge.stage == Stage.LAND
+    sent = len(bridge.sender.poses)
+    p_cam, q_cam = camera_pose(on_axis(29.0, lateral_m=1.0))
+    assert bridge.on_pose(4.6, p_cam, q_cam, COV, now_s=4.61)
+    result = bridge.tick(4.64)  # the timer fires before the frame's status comes
+    assert "ODOMETRY" not in result.sent and len(bridge.sender.poses) == sent
+    assert result.guidance.stamp_s == pytest.approx(4.5) and bridge.stage == Stage.LAND  # the 4.5 s pose is still in use
+    bridge.on_tracker_state(TRACKER_ACQUIRING, 4.6)
+    assert "ODOMETRY" not in bridge.tick(4.74).sent and bridge.stage == Stage.GO_AROUND
+    assert len(bridge.sender.poses) == sent
+
+
+def test_after_the_clock_jumps_back_a_new_pose_waits_for_its_own_status(bridge):
+    bridge.on_tracker_state(TRACKER_TRACKING, 500.0)
+    p_cam, q_cam = camera_pose(on_axis(40.0))
+    assert bridge.on_pose(500.0, p_cam, q_cam, COV, now_s=500.0)
+    assert "ODOMETRY" in bridge.tick(500.01).sent
+    assert bridge.on_pose(1.0, p_cam, q_cam, COV, now_s=1.01)  # replay restarted: the track restarts too
+    assert "ODOMETRY" not in bridge.tick(1.02).sent  # the TRACKING status at 500 s says nothing of it
+    bridge.on_tracker_state(TRACKER_TRACKING, 1.0)
+    assert "ODOMETRY" in bridge.tick(1.12).sent and bridge.sender.poses[-1][0] == 1.0
 
 
 def test_after_the_clock_jumps_back_sending_resumes_at_once(bridge):
@@ -324,7 +364,7 @@ def test_a_pose_outside_the_cone_never_commits_the_landing(bridge):
     assert bridge.stage == Stage.LAND
     # one outlier 6.8 m from the net, 63° to starboard: within no-return range, outside the cone
     p_land = np.array([-3.0, 6.0, -1.0])
-    bridge.on_tracker_state(TRACKER_TRACKING)
+    bridge.on_tracker_state(TRACKER_TRACKING, 4.6)
     p_cam, q_cam = camera_pose(p_land)
     assert bridge.on_pose(4.6, p_cam, q_cam, COV, now_s=4.61)
     assert bridge.tick(4.62).guidance.stage == Stage.GO_AROUND
@@ -380,7 +420,7 @@ def test_an_outlier_commits_at_most_the_range_rate_bound_early():
 
 
 def test_values_mavlink_cannot_carry_are_refused(bridge):
-    bridge.on_tracker_state(TRACKER_TRACKING)
+    bridge.on_tracker_state(TRACKER_TRACKING, 1.0)
     p_cam, q_cam = camera_pose(on_axis(40.0))
     with pytest.raises(ValueError, match="float32"):
         bridge.on_pose(1.0, p_cam * 1e38, q_cam, COV, now_s=1.0)
@@ -392,7 +432,7 @@ def test_values_mavlink_cannot_carry_are_refused(bridge):
 def test_bad_pose_is_rejected_and_nothing_is_sent(bridge):
     cam = CONFIG.camera
     p_cam, q_cam = camera_pose_from_truth(cam.position_m, cam.rpy, CONFIG.net_position_m, on_axis(40.0), (0, 0, 0))
-    bridge.on_tracker_state(TRACKER_TRACKING)
+    bridge.on_tracker_state(TRACKER_TRACKING, 1.0)
     for args in [
         (1.0, p_cam * np.nan, q_cam, COV),
         (1.0, p_cam, q_cam * 1.5, COV),
@@ -404,7 +444,9 @@ def test_bad_pose_is_rejected_and_nothing_is_sent(bridge):
     result = bridge.tick(1.01)
     assert result.sent == ("HEARTBEAT",) and not bridge.sender.poses
     with pytest.raises(ValueError, match="tracker state"):
-        bridge.on_tracker_state(7)
+        bridge.on_tracker_state(7, 1.0)
+    with pytest.raises(ValueError, match="status stamp"):
+        bridge.on_tracker_state(TRACKER_TRACKING, math.nan)
 
 
 def test_stage_machine_needs_a_track_to_leave_loiter():

@@ -68,7 +68,7 @@ def make_bridge(port, messages=ALL_MESSAGES, key_file="", frame="LOCAL_FRD"):
 def feed(bridge, t, p_land, rpy):
     cam = CONFIG.camera
     p_cam, q_cam = camera_pose_from_truth(cam.position_m, cam.rpy, CONFIG.net_position_m, p_land, rpy)
-    bridge.on_tracker_state(TRACKER_TRACKING)
+    bridge.on_tracker_state(TRACKER_TRACKING, t)
     assert bridge.on_pose(t, p_cam, q_cam, COV, now_s=t + 0.01)
     return p_cam, q_cam
 

@@ -21,6 +21,10 @@ HEARTBEAT_PERIOD_S = 1.0
 # checked for staleness, and as the newest stamp it would shut out every correct pose after it.
 CLOCK_LEAD_TOLERANCE_S = 0.05
 FLOAT32_MAX = float(np.finfo(np.float32).max)  # MAVLink's positions and covariances are float32
+# Position messages are at least this fraction of 1 / mavlink.rate_hz apart, not a whole period: the
+# timer ticking at rate_hz fires a varying few ms late, and a whole period would hold a fresh pose
+# back at every tick that came sooner after the last send than the one before it.
+MIN_SEND_SPACING = 0.75
 
 
 @dataclass(frozen=True)
@@ -33,7 +37,10 @@ class GcsBridge:
     """Decides what to send and when: a pose is sent once, only while fresh and tracked.
 
     A pose is fresh while ``−CLOCK_LEAD_TOLERANCE_S <= now_s − stamp_s <= stale_timeout_s``;
-    the tracker must report TRACKING (its latest state wins; LOST drops the held pose). Stale or
+    the tracker must report TRACKING (its latest state wins; LOST drops the held pose). A new pose
+    is held back until a status stamped no earlier than it says TRACKING (the tracker publishes a
+    frame's status after its pose, and after a silent restart of its track that status says
+    ACQUIRING); until then the pose before it stays the one in use. Stale or
     lost → no position message at all and, in LAND, GO_AROUND at the next tick (within 0.5 s,
     checked by the config); a LOST reported between two ticks counts at the next one even if the
     tracker is back to TRACKING by then. A clock that jumps back behind the held pose drops it
@@ -47,10 +54,13 @@ class GcsBridge:
         self._sender = sender if sender is not None else MavlinkSender(config.mavlink)
         self._machine = StageMachine(config.cone, config.go_around_hold_s)
         self._tracker_state = TRACKER_LOST
+        self._status_stamp = -math.inf
         self._lost_since_tick = False
-        self._pose: LandingPose | None = None
+        self._pose: LandingPose | None = None  # the newest pose confirmed by a TRACKING status
         self._stamp = -math.inf
         self._pose_sent = False
+        self._pending: LandingPose | None = None  # a newer pose awaiting its frame's status
+        self._pending_stamp = -math.inf
         self._last_position_send = -math.inf
         self._last_heartbeat = -math.inf
 
@@ -76,24 +86,42 @@ class GcsBridge:
         if max(np.abs(pose.position).max(), np.abs(mavlink_covariance).max()) > FLOAT32_MAX:
             raise ValueError("pose position or covariance exceeds MAVLink's float32 range")
         self._forget_pose_ahead_of(now_s)
-        if stamp_s <= self._stamp or now_s - stamp_s > self._cfg.stale_timeout_s:
+        if stamp_s <= max(self._stamp, self._pending_stamp) or now_s - stamp_s > self._cfg.stale_timeout_s:
             return False
-        self._pose, self._stamp, self._pose_sent = pose, stamp_s, False
+        self._pending, self._pending_stamp = pose, stamp_s
+        self._confirm()
         return True
 
     def _forget_pose_ahead_of(self, now_s: float) -> None:
-        """Drop the held pose if the clock has jumped back behind it (e.g. a restarted replay)."""
+        """Drop held poses and the status stamp if the clock has jumped back behind them (e.g. a restarted replay)."""
         if self._stamp - now_s > CLOCK_LEAD_TOLERANCE_S:
             self._pose, self._stamp = None, -math.inf
+        if self._pending_stamp - now_s > CLOCK_LEAD_TOLERANCE_S:
+            self._pending, self._pending_stamp = None, -math.inf
+        if self._status_stamp - now_s > CLOCK_LEAD_TOLERANCE_S:
+            self._status_stamp = -math.inf
 
-    def on_tracker_state(self, state: int) -> None:
-        """Latest ``TrackerStatus.state``; LOST discards the held pose."""
+    def _confirm(self) -> None:
+        """Settle the pending pose once a status of its frame or a later one has come: it is the pose
+        in use from now on if that status says TRACKING, else it is dropped."""
+        if self._pending is None or self._status_stamp < self._pending_stamp:
+            return
+        if self._tracker_state == TRACKER_TRACKING:
+            self._pose, self._stamp, self._pose_sent = self._pending, self._pending_stamp, False
+        self._pending, self._pending_stamp = None, -math.inf
+
+    def on_tracker_state(self, state: int, stamp_s: float) -> None:
+        """Latest ``TrackerStatus``: its state and image stamp; LOST discards the held pose."""
         if state not in (TRACKER_LOST, TRACKER_ACQUIRING, TRACKER_TRACKING):
             raise ValueError(f"unknown tracker state {state!r}")
-        self._tracker_state = state
+        if not math.isfinite(stamp_s):
+            raise ValueError(f"tracker status stamp must be finite, got {stamp_s!r}")
+        self._tracker_state, self._status_stamp = state, stamp_s
         if state == TRACKER_LOST:
             self._pose, self._stamp = None, -math.inf
+            self._pending, self._pending_stamp = None, -math.inf
             self._lost_since_tick = True
+        self._confirm()
 
     def reset(self) -> None:
         """Operator reset of the stage machine (e.g. after recovery from the net)."""
@@ -122,7 +150,7 @@ class GcsBridge:
             self._sender.send_statustext(status_text(stage, geometry), status_severity(stage))
             sent.append("STATUSTEXT")
         period = 1.0 / self._cfg.mavlink.rate_hz
-        if fresh and not self._pose_sent and now_s - self._last_position_send >= 0.999 * period:
+        if fresh and not self._pose_sent and now_s - self._last_position_send >= MIN_SEND_SPACING * period:
             sent += self._sender.send_pose(self._pose, self._stamp)
             self._pose_sent = True
             self._last_position_send = now_s

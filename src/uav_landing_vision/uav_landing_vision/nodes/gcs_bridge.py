@@ -4,7 +4,8 @@ Subscribes ``uav/pose`` (PoseWithCovarianceStamped) and ``uav/tracker_status`` (
 both reliable; every ``1 / mavlink.rate_hz`` seconds of node time (sim time with
 ``use_sim_time``) it ticks the core (``gcs.GcsBridge``: landing cone, stage machine, MAVLink)
 and publishes its ``LandingGuidance`` (frame ``landing``: x bow, y starboard, z down, origin at
-the net). Parameters: ``config/gcs_bridge.yaml``, validated into ``gcs.GcsBridgeConfig``.
+the net), stamped with its pose's header stamp as received (the core's float seconds cannot hold
+an epoch stamp to the nanosecond) or, without a fresh pose, the tick's time. Parameters: ``config/gcs_bridge.yaml``, validated into ``gcs.GcsBridgeConfig``.
 A malformed pose (NaN, non-unit quaternion, bad covariance) or an unknown tracker state is
 logged and dropped; no position is sent for it.
 """
@@ -20,12 +21,14 @@ from .base import LandingNode, run_node, stamp_ns
 from .qos import RELIABLE_QOS
 
 LANDING_FRAME_ID = "landing"
+POSE_STAMPS_KEPT = 16  # poses wait for their status and are sent at the next tick: a few frames at most
 
 
 class GcsBridgeNode(LandingNode):
     def __init__(self, **kwargs):
         super().__init__("gcs_bridge", **kwargs)
         self.config = self.load_config(GcsBridgeConfig)
+        self._pose_stamps = {}  # float seconds the core knows a pose by -> its header stamp, the last few
         try:
             self._bridge = GcsBridge(self.config)
         except (OSError, ValueError) as exc:
@@ -52,11 +55,15 @@ class GcsBridgeNode(LandingNode):
             return
         if not taken:
             self.counters["stale_poses"] += 1
+            return
+        self._pose_stamps[stamp_ns(msg.header.stamp) * 1e-9] = msg.header.stamp
+        while len(self._pose_stamps) > POSE_STAMPS_KEPT:
+            del self._pose_stamps[next(iter(self._pose_stamps))]
 
     def _on_status(self, msg: TrackerStatus) -> None:
         self.counters["status_received"] += 1
         try:
-            self._bridge.on_tracker_state(msg.state)
+            self._bridge.on_tracker_state(msg.state, stamp_ns(msg.header.stamp) * 1e-9)
         except ValueError as exc:
             self.drop(f"uav/tracker_status rejected: {exc}")
 
@@ -68,7 +75,11 @@ class GcsBridgeNode(LandingNode):
             glide_slope_error=g.glide_slope_error, lateral_angle=g.lateral_angle, inside_cone=g.inside_cone,
         )
         msg.header.frame_id = LANDING_FRAME_ID
-        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(round(g.stamp_s * 1e9), 1_000_000_000)
+        pose_stamp = self._pose_stamps.get(g.stamp_s)
+        if pose_stamp is not None:
+            msg.header.stamp = pose_stamp
+        else:
+            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(round(g.stamp_s * 1e9), 1_000_000_000)
         self._guidance.publish(msg)
         self.counters["published"] += 1
         self.counters["mavlink_sent"] += len(result.sent)
