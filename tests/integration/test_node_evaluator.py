@@ -148,6 +148,8 @@ def test_sigint_writes_the_report_and_exits_cleanly(ros, ros_domain_id, tmp_path
         (Parameter("frames", value=-1), "need frames >= 0"),
         (Parameter("out_dir", value=""), "out_dir, sequence and variant must not be empty"),
         (Parameter("topic", value="x"), r"unknown key\(s\) \['topic'\]"),
+        # A folder that cannot be made failed only when the report was written, after the replay.
+        (Parameter("out_dir", value=str(PARAMS / "report")), f"{PARAMS} is not a writable folder"),
     ],
 )
 def test_bad_parameters_fail_start_up(ros, override, message):

@@ -165,6 +165,28 @@ def test_malformed_input_is_dropped_and_tracking_goes_on(ros, generator):
     assert ros.spin_until(lambda: rig.pose_of(6) is not None)
 
 
+def test_hypotheses_the_core_cannot_go_on_with_restart_the_track_on_the_next_frame(ros, generator):
+    """Finite, unit hypotheses 1e200 m away start a track whose next step overflows: that frame
+    restarts the track from its own hypotheses instead of being dropped (as every later one was),
+    and a frame without hypotheses does not crash the node on the half-stepped filters."""
+    rig = Rig(ros)
+    rig.send_info()
+    assert rig.send(0, frame_msg(0), hypotheses_msg(0, [(np.array([1e200, 0.0, 1e200]), TRUE_QUAT)] * M)) is not None
+    for k in (1, 2):
+        status = rig.send(k, frame_msg(k), boosted_msg(generator, k))
+        assert status is not None and status.state != TrackerStatus.LOST
+    assert rig.send(3, frame_msg(3)) is not None  # tracked by prediction after the timeout
+    assert rig.node.counters["dropped"] == 0
+
+
+def test_a_refinement_batch_beyond_512_poses_is_rendered(ros):
+    """The renderer is sized for the largest batch the tracker renders: with refine.candidates
+    >= 512 the first camera_info raised ValueError out of the callback and the node died."""
+    rig = Rig(ros, Parameter("refine.candidates", value=600))
+    rig.send_info()
+    assert rig.node._renderer.max_batch >= 601
+
+
 def test_a_replay_started_again_restarts_the_track(ros, generator):
     rig = Rig(ros)
     rig.send_info()

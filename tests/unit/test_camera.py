@@ -108,6 +108,9 @@ def test_camera_info_fields_round_trip(camera):
     np.testing.assert_array_equal(again.K, camera.K)
 
 
+_K = "image_width: 1280\nimage_height: 720\ncamera_matrix: {rows: 3, cols: 3, data: [900,0,640,0,900,360,0,0,1]}\n"
+
+
 @pytest.mark.parametrize(
     "text, message",
     [
@@ -146,6 +149,15 @@ def test_camera_info_fields_round_trip(camera):
         ("image_width: 1280\nimage_height: 720\ncamera_matrix: {rows: 1, cols: 9, data: [900,0,1,0,900,1,0,0,1]}\n",
          "must be 3x3"),
         ("image_width: 1280\nimage_width: 640\n", "duplicate key 'image_width'"),
+        # Distortion given in another layout, or numbers of another type, was read as no distortion or as 1.0.
+        (f"{_K}distortion_coefficients: [-0.3, 0.1, 0.0, 0.0, 0.0]\n", "'distortion_coefficients' must be a mapping"),
+        (f"{_K}distortion_coefficients: {{rows: 1, cols: 5, date: [-0.3, 0.1, 0, 0, 0]}}\n",
+         "'distortion_coefficients' must be a mapping with rows, cols and data"),
+        (f"{_K}distortion_coefficients: {{rows: 1, cols: 5, data: [true, 0, 0, 0, 0]}}\n",
+         r"'distortion_coefficients' must be a list of numbers, got \[True"),
+        (f"{_K}distortion_coefficients: {{rows: 1, cols: 5, data: ['-0.3', 0, 0, 0, 0]}}\n",
+         "'distortion_coefficients' must be a list of numbers"),
+        (_K.replace("[900,", "[1" + "0" * 400 + ","), "'camera_matrix' must be a list of numbers"),  # OverflowError before
     ],
 )
 def test_bad_yaml_is_a_clear_error(tmp_path, text, message):
@@ -155,6 +167,13 @@ def test_bad_yaml_is_a_clear_error(tmp_path, text, message):
         load_camera_info_yaml(path)
 
 
+def test_a_yaml_that_is_not_text_is_a_clear_error(tmp_path):
+    path = tmp_path / "camera.yaml"
+    path.write_bytes(b"\x89PNG\r\n\x1a\n\x00\x00")  # e.g. a calibration image given by mistake
+    with pytest.raises(CameraInfoError, match=f"cannot read camera calibration {path}: unacceptable character"):
+        load_camera_info_yaml(path)  # a UnicodeDecodeError naming no file before
+
+
 def test_bad_camera_info_fields():
     with pytest.raises(CameraInfoError, match="uncalibrated"):
         camera_from_info_fields(640, 480, "plumb_bob", [0] * 5, [0] * 9)
@@ -162,6 +181,8 @@ def test_bad_camera_info_fields():
         camera_from_info_fields(640, 480, "rational_polynomial", [0] * 8, [500, 0, 320, 0, 500, 240, 0, 0, 1])
     with pytest.raises(CameraInfoError, match="1..16384 px a side"):  # no remap table or framebuffer that size
         camera_from_info_fields(2**32 - 1, 1, "plumb_bob", [0] * 5, [500, 0, 320, 0, 500, 240, 0, 0, 1])
+    with pytest.raises(CameraInfoError, match=r"coefficients, got \[-0.2, nan, 0.0, 0.0, 0.0\]"):  # was "got 5"
+        camera_from_info_fields(640, 480, "plumb_bob", [-0.2, np.nan, 0, 0, 0], [500, 0, 320, 0, 500, 240, 0, 0, 1])
 
 
 def _info_msg(binning=(0, 0), roi=(0, 0, 0, 0)):

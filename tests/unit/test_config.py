@@ -70,6 +70,11 @@ def test_parameter_file_sections(tmp_path):
     path.write_text("tracker: [\n")
     with pytest.raises(ConfigError, match="cannot read"):
         load_node_parameters(path, "tracker")
+    path.write_bytes("# Kamera f\u00fcr das Deck\ntracker:\n  ros__parameters: {count: 7}\n".encode("latin-1"))
+    with pytest.raises(ConfigError, match=f"cannot read parameter file {path}: unacceptable character"):
+        load_node_parameters(path, "tracker")  # a UnicodeDecodeError naming no file before
+    path.write_bytes("# Kamera f\u00fcr das Deck\ntracker:\n  ros__parameters: {count: 7}\n".encode("utf-16"))
+    assert load_node_parameters(path, "tracker") == {"count": 7}  # YAML may be UTF-16 with a byte order mark
 
 
 def test_parameter_file_with_a_repeated_key_is_refused(tmp_path):

@@ -42,7 +42,7 @@ def load_node_parameters(path, node: str) -> dict:
     """The ``ros__parameters`` mapping of ``node`` in a ROS 2 parameter file."""
     path = Path(path)
     try:
-        doc = yaml.load(path.read_text(), UniqueKeyLoader)
+        doc = yaml.load(path.read_bytes(), UniqueKeyLoader)  # bytes: an undecodable file is a YAMLError
     except (OSError, yaml.YAMLError) as exc:
         raise ConfigError(f"cannot read parameter file {path}: {exc}") from exc
     if not isinstance(doc, dict) or node not in doc:

@@ -37,9 +37,11 @@ def _matrix(doc: dict, key: str, rows: int, cols: int, source: str) -> np.ndarra
 
 
 def _numbers(values, key: str, source: str) -> np.ndarray:
+    if not isinstance(values, list) or any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in values):
+        raise CameraInfoError(f"{source}: '{key}' must be a list of numbers, got {values!r}")
     try:
-        return np.asarray(values, dtype=float).ravel()
-    except (TypeError, ValueError) as exc:
+        return np.array(values, dtype=float)
+    except OverflowError as exc:  # an integer beyond the float range
         raise CameraInfoError(f"{source}: '{key}' must be a list of numbers ({exc})") from exc
 
 
@@ -56,7 +58,7 @@ def load_camera_info_yaml(path, frame_id: str = DEFAULT_FRAME_ID) -> CameraModel
     """Read a ROS camera_info YAML file; raise :class:`CameraInfoError` on anything malformed."""
     path = Path(path)
     try:
-        doc = yaml.load(path.read_text(), UniqueKeyLoader)
+        doc = yaml.load(path.read_bytes(), UniqueKeyLoader)  # bytes: an undecodable file is a YAMLError
     except (OSError, yaml.YAMLError) as exc:
         raise CameraInfoError(f"cannot read camera calibration {path}: {exc}") from exc
     if not isinstance(doc, dict):
@@ -68,9 +70,10 @@ def load_camera_info_yaml(path, frame_id: str = DEFAULT_FRAME_ID) -> CameraModel
     if model != SUPPORTED_DISTORTION:
         raise CameraInfoError(f"{path}: distortion model '{model}' is not supported (only {SUPPORTED_DISTORTION})")
     K = _matrix(doc, "camera_matrix", 3, 3, str(path))
-    dist_entry = doc.get("distortion_coefficients", {"data": [0.0] * 5})
-    dist_data = dist_entry.get("data", []) if isinstance(dist_entry, dict) else []
-    dist = _numbers(dist_data, "distortion_coefficients", str(path))
+    dist_entry = doc.get("distortion_coefficients", {"data": []})  # none given: no distortion
+    if not isinstance(dist_entry, dict) or "data" not in dist_entry:
+        raise CameraInfoError(f"{path}: 'distortion_coefficients' must be a mapping with rows, cols and data")
+    dist = _numbers(dist_entry["data"], "distortion_coefficients", str(path))
     if "rectification_matrix" in doc:
         R = _matrix(doc, "rectification_matrix", 3, 3, str(path))
         if not np.allclose(R, np.eye(3)):

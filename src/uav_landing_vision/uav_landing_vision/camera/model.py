@@ -40,7 +40,7 @@ class CameraModel:
         if dist.size in (0, 4):  # none (as ROS's image_geometry reads an empty D), or k3 = 0
             dist = np.append(dist, np.zeros(5 - dist.size))
         if dist.size != 5 or not np.all(np.isfinite(dist)):
-            raise ValueError(f"distortion must be 0, 4 or 5 finite plumb_bob coefficients, got {dist.size}")
+            raise ValueError(f"distortion must be 0, 4 or 5 finite plumb_bob coefficients, got {dist.tolist()}")
         K.setflags(write=False)
         dist.setflags(write=False)
         object.__setattr__(self, "width", int(self.width))

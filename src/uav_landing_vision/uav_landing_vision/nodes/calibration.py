@@ -1,13 +1,15 @@
 """Calibration from ``sensor_msgs/CameraInfo``, parsed and validated once per distinct calibration."""
 
-from ..camera import CameraModel, camera_from_info_msg
+from ..camera import CameraInfoError, CameraModel, camera_from_info_msg
 
 
 class Calibration:
-    """The camera of the latest valid camera_info message."""
+    """The camera of the latest valid camera_info message. With ``rectified`` (``camera_info_rect``)
+    one with distortion is refused: the nodes on rectified images use K alone."""
 
-    def __init__(self):
+    def __init__(self, rectified: bool = False):
         self.camera: CameraModel | None = None
+        self.rectified = rectified
         self._key = None
 
     def update(self, msg, use=None) -> bool:
@@ -24,6 +26,9 @@ class Calibration:
         if key == self._key:
             return False
         camera = camera_from_info_msg(msg)
+        if self.rectified and camera.is_distorted:
+            raise CameraInfoError(f"distortion {camera.dist.tolist()} in the camera_info of a rectified image "
+                                  "(expected none, as undistort's camera/camera_info_rect has)")
         if use is not None:
             use(camera)
         self._key, self.camera = key, camera

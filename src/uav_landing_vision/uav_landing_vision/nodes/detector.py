@@ -63,7 +63,7 @@ class DetectorNode(LandingNode):
         self._detector = _load_detector(self.config)
         self._pub = self.create_publisher(DetectionArray, "uav/detections", RELIABLE_QOS)
         self.create_subscription(Image, "camera/image_rect", self._on_image, IMAGE_QOS)
-        self._calibration, self._pose = Calibration(), None
+        self._calibration, self._pose = Calibration(rectified=True), None
         if self.node_config.search_window or self._track_box.config.enabled:
             self.create_subscription(CameraInfo, "camera/camera_info_rect", self._on_camera_info, IMAGE_QOS)
             self.create_subscription(PoseWithCovarianceStamped, "uav/pose", self._on_pose, RELIABLE_QOS)

@@ -20,6 +20,7 @@ early), the report says so in its last line and the log warns. Non-finite poses,
 quaternions and repeated stamps are logged, counted and dropped.
 """
 
+import os
 import sys
 import time
 from dataclasses import dataclass
@@ -30,6 +31,7 @@ import rclpy
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from rclpy.executors import ExternalShutdownException
 
+from ..config import ConfigError
 from ..evaluation import (
     align,
     format_errors_by_depth,
@@ -68,6 +70,11 @@ class EvaluatorNode(LandingNode):
     def __init__(self, **kwargs):
         super().__init__("evaluator", **kwargs)
         self.config = self.load_config(EvaluatorConfig)
+        out = Path(self.config.out_dir).absolute()  # checked now, not once the replay is over and the report lost
+        existing = next(p for p in (out, *out.parents) if p.exists())
+        if not (existing.is_dir() and os.access(existing, os.W_OK | os.X_OK)):
+            raise ConfigError(f"out_dir: cannot write the report into '{self.config.out_dir}': "
+                              f"{existing} is not a writable folder")
         self.truth: dict[int, tuple] = {}
         self.estimates: dict[int, tuple] = {}
         self.covariances: dict[int, np.ndarray] = {}

@@ -61,7 +61,7 @@ class PoseBoostingNode(LandingNode):
         self.node_config = self.load_config(PoseBoostingNodeConfig, group="node")
         self._database = _load_database(self.config)
         self._generator = None
-        self._calibration = Calibration()
+        self._calibration = Calibration(rectified=True)
         self._uncalibrated = deque()  # (image, frame, detections) paired before a usable calibration
         self._cache = StampCache(("image", "detections"), self.node_config.cache_size, RESTART_BEHIND_NS)
         self._pub = self.create_publisher(PoseHypotheses, "uav/pose_hypotheses", RELIABLE_QOS)

@@ -18,7 +18,8 @@ calibration are held (``node.cache_size`` of them) and tracked once it comes. An
 2 s before the last tracked frame starts a new time-line (a replay or clock started again): the
 track restarts, where every later frame would otherwise be dropped as out of order. Hypotheses without
 an image, late ones and malformed ones (non-finite, non-unit quaternion: the frame is then
-tracked by prediction at once) are logged, counted and dropped.
+tracked by prediction at once) are logged, counted and dropped. A frame the core cannot step
+with the current track (e.g. one started from finite but absurd hypotheses) restarts the track there.
 
 Each message carries M hypotheses; the tracker takes the first ``Tracker.hypotheses_needed()``
 (M at (re)initialisation and in C1, M − M0 otherwise). This node owns the process's only
@@ -45,7 +46,7 @@ from ..config import ConfigError
 from ..model import fixed_wing_mesh
 from ..render import Renderer
 from ..render.context import GLContextError, gl_context
-from ..tracking.upf import Tracker, TrackerConfig
+from ..tracking.upf import Tracker, TrackerConfig, render_batch
 from .base import LandingNode, run_node, stamp_ns
 from .calibration import Calibration
 from .image import ImageError, image_to_rgb, numpy_to_image
@@ -87,7 +88,7 @@ class TrackerNode(LandingNode):
         self.get_logger().info(f"GL_RENDERER: {ctx.info['GL_RENDERER']}; tracker {self.config.name}, M={self.config.particles}")
         self._mesh = fixed_wing_mesh("low")
         self._tracker = self._renderer = None
-        self._calibration = Calibration()
+        self._calibration = Calibration(rectified=True)
         self._uncalibrated = deque()  # (image, frame, hypotheses) due before the first calibration
         self._last_stamp = -1
         self._cache = StampCache(("image", "hypotheses"), self.node_config.cache_size)
@@ -105,7 +106,7 @@ class TrackerNode(LandingNode):
 
     def _use_camera(self, camera) -> None:
         try:
-            renderer = Renderer(camera, self._mesh, tile=self.config.tile, max_batch=max(512, self.config.particles))
+            renderer = Renderer(camera, self._mesh, tile=self.config.tile, max_batch=render_batch(self.config))
         except (ValueError, moderngl.Error) as exc:
             raise CameraInfoError(f"cannot render at {camera.width}x{camera.height}: {exc}") from exc
         if self._tracker is not None:
@@ -195,11 +196,19 @@ class TrackerNode(LandingNode):
             self.drop(f"image is {image.width}x{image.height} but the calibration is {self._renderer.width}x{self._renderer.height}")
             return
         stamp = stamp_ns(image.header.stamp)
+        if stamp <= self._last_stamp:  # a restart below must never track a frame out of order
+            self.drop(f"frame stamped {stamp} ns is not after the last tracked frame ({self._last_stamp} ns)")
+            return
         try:
             result = tracker.step(frame, stamp, boosted)
-        except ValueError as exc:  # e.g. a stamp not after the last: the core refuses it unchanged
-            self.drop(f"frame stamped {stamp} ns not tracked: {exc}")
-            return
+        except ValueError as exc:  # a track the core cannot go on with (e.g. absurd hypotheses): start afresh
+            self.get_logger().warning(f"frame stamped {stamp} ns: {exc}; the track restarts", throttle_duration_sec=1.0)
+            tracker.reset()
+            try:
+                result = tracker.step(frame, stamp, boosted)
+            except ValueError as exc:
+                self.drop(f"frame stamped {stamp} ns not tracked: {exc}")
+                return
         self._last_stamp = stamp
         header = image.header
         if result.has_pose:

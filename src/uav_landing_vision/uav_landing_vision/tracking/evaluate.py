@@ -24,7 +24,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .upf import STAGES, Tracker, TrackerConfig, TrackState, parse_variant
+from .upf import STAGES, Tracker, TrackerConfig, TrackState, parse_variant, render_batch
 
 ROI_SOURCES = ("detector", "oracle")
 SHARED_STAGES = ("undistort", "roi", "boosting")
@@ -128,7 +128,7 @@ def evaluate_bag(bag, variants, *, particles: int | None = None, metric: str | N
     boost = PoseHypothesisGenerator.from_config(replace(
         shipped_config(HypothesisConfig, "pose_boosting"), particles=particles, kept=particles - configs[names[0]].boosted),
         camera)
-    renderer = Renderer(camera, fixed_wing_mesh("low"), tile=configs[names[0]].tile, max_batch=max(512, particles))
+    renderer = Renderer(camera, fixed_wing_mesh("low"), tile=configs[names[0]].tile, max_batch=max(map(render_batch, configs.values())))
     trackers = {n: Tracker(c, camera, renderer) for n, c in configs.items()}
     track_box_config = shipped_config(TrackBoxConfig, "detector", "track_box")
     track_boxes = {n: TrackBox(track_box_config, vertices) for n in names}

@@ -273,6 +273,12 @@ def coasting_covariance(pos: np.ndarray, frames: int, range_fraction: float, sig
     return np.diag(np.repeat([s_pos**2, (frames * sigma_rad) ** 2], 3))
 
 
+def render_batch(config: TrackerConfig) -> int:
+    """The ``max_batch`` of a renderer for a tracker of ``config``: its largest draw call (M
+    particles, or the rotation refinement's candidates + 1), and at least 512."""
+    return max(512, config.particles, config.refine.candidates + 1)
+
+
 class Tracker:
     """The tracking core of the ``tracker`` node; one per process (it owns the renderer's use).
 
@@ -286,7 +292,7 @@ class Tracker:
             from ..model import fixed_wing_mesh
             from ..render import Renderer
 
-            renderer = Renderer(camera, fixed_wing_mesh("low"), tile=config.tile, max_batch=max(512, batch))
+            renderer = Renderer(camera, fixed_wing_mesh("low"), tile=config.tile, max_batch=render_batch(config))
         if renderer.max_batch < batch:
             raise ValueError(f"renderer max_batch {renderer.max_batch} < {batch}, the largest batch this tracker "
                              f"renders ({config.particles} particles, {config.refine.candidates} + 1 refinement poses)")
