@@ -196,6 +196,23 @@ def test_invalid_renderer_settings_are_refused(camera, mesh, settings):
         Renderer(camera, mesh, **settings)
 
 
+@pytest.mark.parametrize("limit, value", [("GL_MAX_RENDERBUFFER_SIZE", 1536), ("GL_MAX_VIEWPORT_DIMS", (1536, 1536))])
+def test_atlas_beyond_the_context_limits_is_refused(camera, mesh, monkeypatch, limit, value):
+    # 512 poses of 64 px: a 32 x 16 tile atlas, 2048 x 1024 px. A driver whose renderbuffers or viewport
+    # stop at 1536 px would leave the framebuffer incomplete or clamp the viewport and misplace the tiles.
+    monkeypatch.setitem(gl_context().info, limit, value)
+    with pytest.raises(ValueError, match=f"atlas 2048x1024 exceeds .*{limit}.*max_batch"):
+        Renderer(camera, mesh, tile=64, max_batch=512)
+    Renderer(camera, mesh, tile=32, max_batch=512).release()  # 1024 x 512 fits
+
+
+@pytest.mark.parametrize("limit, value", [("GL_MAX_TEXTURE_SIZE", 1024), ("GL_MAX_VIEWPORT_DIMS", (1280, 700))])
+def test_image_beyond_the_context_limits_is_refused(camera, mesh, monkeypatch, limit, value):
+    monkeypatch.setitem(gl_context().info, limit, value)
+    with pytest.raises(ValueError, match=f"image 1280x720 exceeds .*{limit}"):
+        Renderer(camera, mesh, tile=32, max_batch=16)
+
+
 def test_side_view_is_upright_and_not_mirrored(camera, renderer):
     full = renderer.silhouette_full(side_view_quat(), [0.0, 0.0, 6.0])
     rows, cols = np.nonzero(full)

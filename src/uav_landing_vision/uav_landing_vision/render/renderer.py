@@ -79,8 +79,8 @@ class Renderer:
         self._cols = 1 << int(np.ceil(np.log2(np.sqrt(self.max_batch))))
         rows = -(-self.max_batch // self._cols)
         aw, ah = self._cols * self.tile, rows * self.tile
-        if max(aw, ah) > ctx.info["GL_MAX_TEXTURE_SIZE"]:
-            raise ValueError(f"atlas {aw}x{ah} exceeds the GL limit; lower max_batch or tile")
+        _check_target_size(ctx, "silhouette atlas", (aw, ah),
+                           f"lower max_batch ({self.max_batch}: the particles per draw) or tile ({self.tile})")
         self._atlas = ctx.framebuffer(color_attachments=[ctx.renderbuffer((aw, ah), components=1, dtype="f1")])
         self._atlas_buf = np.zeros((ah, aw), dtype=np.uint8)
         slot = np.arange(self.max_batch)
@@ -92,9 +92,7 @@ class Renderer:
         )  # fmt: skip
 
         size = (self.width, self.height)
-        if max(size) > ctx.info["GL_MAX_RENDERBUFFER_SIZE"]:
-            raise ValueError(f"image {self.width}x{self.height} exceeds the GL renderbuffer limit "
-                             f"{ctx.info['GL_MAX_RENDERBUFFER_SIZE']}")
+        _check_target_size(ctx, "image", size, "use a smaller camera resolution", texture=True)
         self._full_box = np.array([-0.5, -0.5, self.width - 0.5, self.height - 0.5])
         self._full = ctx.framebuffer(color_attachments=[ctx.renderbuffer(size, components=1, dtype="f1")])
         self._full_buf = np.zeros((self.height, self.width), dtype=np.uint8)
@@ -234,6 +232,20 @@ class Renderer:
                 depth_attachment=self.ctx.depth_renderbuffer(size, samples=s),
             )
         return self._msaa[samples]
+
+
+def _check_target_size(ctx: moderngl.Context, what: str, size: tuple[int, int], fix: str, *, texture: bool = False):
+    """Refuse a render target that this context cannot draw: wider or taller than a renderbuffer
+    may be (the framebuffer would be incomplete), than the viewport (GL clamps it silently, and
+    every tile would land in the wrong place) or, with ``texture``, than a texture."""
+    rb = ctx.info["GL_MAX_RENDERBUFFER_SIZE"]
+    limits = {"GL_MAX_RENDERBUFFER_SIZE": (rb, rb), "GL_MAX_VIEWPORT_DIMS": tuple(ctx.info["GL_MAX_VIEWPORT_DIMS"])}
+    if texture:
+        limits["GL_MAX_TEXTURE_SIZE"] = (ctx.info["GL_MAX_TEXTURE_SIZE"],) * 2
+    for name, (max_w, max_h) in limits.items():
+        if size[0] > max_w or size[1] > max_h:
+            raise ValueError(f"{what} {size[0]}x{size[1]} exceeds this GL context's {name} "
+                             f"({max_w}x{max_h}, {ctx.info['GL_RENDERER']}); {fix}")
 
 
 def _hull_points(vertices: np.ndarray) -> np.ndarray:
