@@ -83,3 +83,8 @@ def test_frames_without_a_box_do_not_count_towards_the_limit():
 def test_bad_settings_are_refused(kwargs, message):
     with pytest.raises(ValueError, match=message):
         TrackBoxConfig(**kwargs)
+
+
+def test_a_pose_far_beyond_the_image_gives_no_box():
+    for position in ([1e200, 0.0, 1.0], [-1e200, 0.0, 1.0], [0.0, 1e300, 1e-300]):
+        assert projected_roi(CAMERA, VERTICES, QUAT, position) is None

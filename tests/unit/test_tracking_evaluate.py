@@ -3,6 +3,7 @@
 import json
 from dataclasses import replace
 
+import cv2
 import numpy as np
 import pytest
 import yaml
@@ -79,6 +80,14 @@ def test_same_seed_same_estimates(bag):
     b = evaluate_bag(bag, ["C4N2"], particles=30, roi_source="oracle", frames=4, progress=False)
     for x, y in zip(a.estimates["C4N2"], b.estimates["C4N2"]):
         np.testing.assert_array_equal(x, y)
+
+
+def test_a_refinement_batch_beyond_512_poses_is_rendered(bag):
+    """The shared renderer is sized for the largest batch a tracker renders, refinement included."""
+    config = load_tracker_config()
+    base = replace(config, refine=replace(config.refine, candidates=600))
+    result = evaluate_bag(bag, ["C4N2"], particles=30, roi_source="oracle", frames=2, progress=False, base=base)
+    assert result.frames == 2
 
 
 def test_start_skips_frames_and_the_tracker_starts_there(bag):
@@ -190,7 +199,9 @@ def test_projected_roi_holds_the_projected_model(bag):
     truth = read_poses(bag)
     vertices = fixed_wing_mesh("high").vertices
     x, y, w, h = projected_roi(camera, vertices, truth.quat[0], truth.trans[0])
-    uv = camera.project_pinhole(truth.trans[0] + vertices @ Rotation.from_quat(truth.quat[0]).as_matrix().T)
-    assert np.all((uv[:, 0] >= x) & (uv[:, 0] <= x + w) & (uv[:, 1] >= y) & (uv[:, 1] <= y + h))
+    rvec = Rotation.from_quat(truth.quat[0]).as_rotvec()
+    uv, _ = cv2.projectPoints(vertices, rvec, truth.trans[0], camera.K, None)
+    pixels = np.floor(uv.reshape(-1, 2) + 0.5)  # OpenCV: integer coordinates are pixel centres
+    assert (x, y, x + w - 1, y + h - 1) == (*pixels.min(axis=0), *pixels.max(axis=0))
     assert w < 0.5 * camera.width
     assert projected_roi(camera, vertices, truth.quat[0], -truth.trans[0]) is None  # behind the camera

@@ -37,23 +37,25 @@ def project_points(K: np.ndarray, rot: np.ndarray, trans: np.ndarray, points: np
         for i in range(3)
     ]
     z = p[2]
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         u = (K[0, 0] * p[0] + K[0, 1] * p[1]) / z + K[0, 2]
         v = K[1, 1] * p[1] / z + K[1, 2]
     return z, np.stack([u, v], axis=-1)
 
 
 def projected_roi(camera, vertices: np.ndarray, quat, trans):
-    """ROI ``(x, y, w, h)`` in whole pixels of the model's vertices projected at one pose by
-    ``camera`` (its ``K``, ``width`` and ``height``), clipped to the image; None when a vertex is
-    behind the camera or the box is outside the image."""
+    """ROI ``(x, y, w, h)`` of the model's vertices projected at one pose by ``camera`` (its
+    ``K``, ``width`` and ``height``): pixels x … x+w−1 and y … y+h−1 are those the projected
+    extent touches, clipped to the image; None when a vertex is behind the camera or the box is
+    outside the image."""
     rot, t = pose_matrices(np.asarray(quat, float)[None], np.asarray(trans, float)[None])
     z, uv = project_points(camera.K, rot, t, np.asarray(vertices, float))
-    if not np.all(z > 0):
+    if not (np.all(z > 0) and np.all(np.isfinite(uv))):
         return None
-    lo, hi = uv[0].min(axis=0), uv[0].max(axis=0)
-    x0, y0 = np.floor(np.maximum(lo, 0)).astype(int)
-    x1, y1 = np.ceil(np.minimum(hi, [camera.width, camera.height])).astype(int)
+    size = [camera.width, camera.height]
+    lo, hi = uv[0].min(axis=0) + 0.5, uv[0].max(axis=0) + 0.5  # pixel edges: pixel u spans [u, u+1)
+    x0, y0 = np.floor(np.clip(lo, 0, size)).astype(int)
+    x1, y1 = np.ceil(np.clip(hi, 0, size)).astype(int)
     return None if x1 <= x0 or y1 <= y0 else (int(x0), int(y0), int(x1 - x0), int(y1 - y0))
 
 
