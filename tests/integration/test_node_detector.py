@@ -3,6 +3,8 @@ ONNX it runs in-process over DDS and publishes well-formed DetectionArray messag
 
 from pathlib import Path
 
+import cv2
+import numpy as np
 import pytest
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from rclpy.parameter import Parameter
@@ -128,23 +130,38 @@ def test_malformed_images_are_dropped_and_the_node_keeps_working(ros, model):
 def test_search_window_from_the_last_pose(ros, model):
     rig = Rig(ros, model, Parameter("node.search_window", value=True), Parameter("window_min_px", value=32),
               Parameter("window_grow", value=1.0))
+    windows = []  # the window each detection was run in
+    detect = rig.node._detector.detect
+    rig.node._detector.detect = lambda frame, window=None: windows.append(window) or detect(frame, window)
     info_pub = ros.probe.create_publisher(CameraInfo, "camera/camera_info_rect", IMAGE_QOS)
     pose_pub = ros.probe.create_publisher(PoseWithCovarianceStamped, "uav/pose", RELIABLE_QOS)
     assert ros.spin_until(lambda: info_pub.get_subscription_count() and pose_pub.get_subscription_count())
     image = image_msg(rgb_frame(CAMERA, 1), "rgb8", sec=5)
     _check(rig.send(image), image)  # no pose yet: full frame
-    assert rig.node.counters["windowed"] == 0
+    assert rig.node.counters["windowed"] == 0 and windows == [None]
     info_pub.publish(camera_info_msg(CAMERA, sec=5))
     pose = PoseWithCovarianceStamped(header=image.header)
     pose.pose.pose.position.z, pose.pose.pose.orientation.w = 8.0, 1.0
     pose_pub.publish(pose)
     assert ros.spin_until(lambda: rig.node._calibration.camera is not None and rig.node._pose is not None)
     later = image_msg(rgb_frame(CAMERA, 2), "rgb8", sec=5, nanosec=33_000_000)
-    _check(rig.send(later), later)
+    out = rig.send(later)
+    _check(out, later)
     assert rig.node.counters["windowed"] == 1
+    # The window is centred on the model projected at the pose (OpenCV; pixel centres at integers,
+    # so the extent's edges are half a pixel out), window_min_px a side: the model is 12 x 18 px.
+    uv = cv2.projectPoints(fixed_wing_mesh("high").vertices, np.zeros(3), np.array([0.0, 0.0, 8.0]), CAMERA.K,
+                           None)[0].reshape(-1, 2)
+    centre = (uv.min(axis=0) + uv.max(axis=0)) / 2 + 0.5
+    assert len(windows) == 2 and windows[1] is not None, windows  # one search, in a window
+    x, y, w, h = windows[1]
+    assert (w, h) == (32, 32) and np.all(np.abs(np.array([x + w / 2, y + h / 2]) - centre) <= 1.0), (windows[1], centre)
+    for d in out.detections:  # what was found in the window: the full frame is searched only when it holds nothing
+        r = d.roi
+        assert x <= r.x_offset and r.x_offset + r.width <= x + w and y <= r.y_offset and r.y_offset + r.height <= y + h
     stale = image_msg(rgb_frame(CAMERA, 3), "rgb8", sec=7)  # 2 s after the pose: full frame
     _check(rig.send(stale), stale)
-    assert rig.node.counters["windowed"] == 1
+    assert rig.node.counters["windowed"] == 1 and windows[2:] == [None]
     bad = PoseWithCovarianceStamped(header=image.header)
     bad.pose.pose.orientation.w = float("nan")
     dropped = rig.node.counters["dropped"]

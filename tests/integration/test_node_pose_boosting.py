@@ -1,6 +1,7 @@
 """``pose_boosting`` in-process over DDS: rendered frame + detection → hypotheses; matching by
 stamp in either order; bad input dropped. Also the rendered scene ``test_node_tracker`` uses."""
 
+import dataclasses
 import functools
 import math
 from pathlib import Path
@@ -12,10 +13,10 @@ from sensor_msgs.msg import CameraInfo, Image, RegionOfInterest
 from test_node_common import camera_info_msg, image_msg, ros  # noqa: F401 (fixture)
 
 from uav_landing_msgs.msg import Detection, DetectionArray, PoseHypotheses
-from uav_landing_vision.boosting import DatabaseConfig, build_database
+from uav_landing_vision.boosting import DatabaseConfig, HypothesisConfig, PoseHypothesisGenerator, build_database
 from uav_landing_vision.boosting.database import NOMINAL_QUAT
 from uav_landing_vision.camera import CameraModel
-from uav_landing_vision.config import ConfigError
+from uav_landing_vision.config import ConfigError, from_mapping, load_node_parameters
 from uav_landing_vision.geometry import euler_zyx_to_quat, quat_multiply
 from uav_landing_vision.model import fixed_wing_mesh
 from uav_landing_vision.nodes.base import stamp_ns
@@ -110,9 +111,17 @@ def frame_msg(k: int, encoding: str = "rgb8") -> Image:
     return image_msg(pixels, encoding, *stamp(k))
 
 
+def library_generator(database: Path) -> PoseHypothesisGenerator:
+    """The boosting core with the node's parameter file and the rig's M, M0 and database."""
+    params = {k: v for k, v in load_node_parameters(PARAMS, "pose_boosting").items() if k != "node"}
+    config = from_mapping(HypothesisConfig, {**params, "particles": M, "kept": M0, "database": str(database)})
+    return PoseHypothesisGenerator.from_config(config, CAMERA)
+
+
 def test_hypotheses_from_the_best_detection_in_either_order(ros, small_database):
     rig = Rig(ros, small_database)
     rig.send_info()
+    library = library_generator(small_database)
     decoy = (0, 0, 30, 20, 0.3)  # lower score: not used
     for k, order in [(0, "image first"), (1, "detections first")]:
         x, y, w, h = true_roi(k)
@@ -125,9 +134,19 @@ def test_hypotheses_from_the_best_detection_in_either_order(ros, small_database)
         quats = np.array([[p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w] for p in out.poses])
         np.testing.assert_allclose(np.linalg.norm(quats, axis=1), 1.0, atol=1e-9)
         assert np.linalg.norm(positions[0] - true_position(k)) < 1.0  # weak perspective from one box
+        # Pose by pose (best first), what the boosting core makes of the frame in RGB and the best ROI.
+        expected = library.generate(scene_frame(k), (x, y, w, h), count=M)
+        np.testing.assert_allclose(positions, expected.positions, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(quats, expected.quats / np.linalg.norm(expected.quats, axis=1, keepdims=True),
+                                   rtol=0, atol=1e-12)
+        np.testing.assert_allclose(out.distances, expected.distances, rtol=1e-6)
         obb = out.obb
+        assert (obb.center_x, obb.center_y, obb.width, obb.height) == pytest.approx(
+            (expected.obb.x, expected.obb.y, expected.obb.w, expected.obb.h), rel=1e-6)
         assert x <= obb.center_x <= x + w and y <= obb.center_y <= y + h
         assert obb.width >= obb.height > 0 and -math.pi / 2 <= obb.angle < math.pi / 2
+        turn = (obb.angle - math.radians(expected.obb.theta)) % math.pi  # the same line: equal up to a half turn
+        assert min(turn, math.pi - turn) < 1e-6
     assert rig.node.counters["dropped"] == 0
 
 
@@ -182,6 +201,18 @@ def test_calibration_the_database_was_not_made_for_is_refused(ros, small_databas
     assert ros.spin_until(lambda: len(rig.out) == 1) and len(rig.out[0].poses) == M
     assert rig.out[0].header == frame_msg(0).header
     assert rig.send(frame_msg(1), detections_msg(1, [(*true_roi(1), 0.9)])) is not None
+
+
+def test_a_raw_camera_info_on_the_rectified_topic_is_refused(ros, small_database):
+    """The nodes on rectified images use K alone: a camera_info with distortion there (a raw
+    camera's, wired past undistort) was taken, its distortion silently ignored."""
+    rig = Rig(ros, small_database)
+    rig.info_pub.publish(camera_info_msg(dataclasses.replace(CAMERA, dist=np.array([-0.2, 0.05, 0.0, 0.0, 0.0]))))
+    assert ros.spin_until(lambda: rig.node.counters["dropped"] == 1)
+    assert "distortion [-0.2, 0.05, 0.0, 0.0, 0.0] in the camera_info of a rectified image" in rig.node.last_error
+    assert rig.node._calibration.camera is None
+    rig.send_info()
+    assert rig.send(frame_msg(0), detections_msg(0, [(*true_roi(0), 0.9)])) is not None
 
 
 def test_frames_before_the_first_calibration_are_held_as_many_as_the_cache(ros, small_database):

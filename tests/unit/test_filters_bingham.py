@@ -197,8 +197,12 @@ def test_concentrations_beyond_the_table_are_clamped_in_the_evidence():
     z_max = bingham.max_concentration()
     np.testing.assert_array_equal(bingham.clamp_concentration(np.array([-2 * z_max, -1.0, 0.0])), [-z_max, -1.0, 0.0])
     m = np.linalg.qr(np.random.default_rng(14).standard_normal((4, 4)))[0]
-    z = np.full(3, -0.9 * z_max)  # the product's concentrations are −1.8 z_max
-    assert np.isfinite(bingham.product_log_evidence(m, z, m, z))
+    z = np.full(3, -0.9 * z_max)  # the product's concentrations are −1.8 z_max, clamped to −z_max
+    # Laplace's method at these concentrations (two antipodal Gaussian peaks): F(Z) = 2π^{3/2} / √|z1 z2 z3|;
+    # the product's largest eigenvalue is 0, so the evidence is log F(−z_max) − 2 log F(−0.9 z_max).
+    laplace = lambda zz: np.log(2 * np.pi**1.5 / np.sqrt(np.prod(np.abs(zz))))  # noqa: E731
+    expected = laplace(np.full(3, -z_max)) - 2 * laplace(z)
+    assert bingham.product_log_evidence(m, z, m, z) == pytest.approx(expected, abs=1e-4)
 
 
 @pytest.mark.parametrize("z", [(-1.0, -2.0, 0.0), (-1.0, -2.0, -3.0, -0.5), (-1.0, -2.0), (-1.0, np.nan, -3.0)])

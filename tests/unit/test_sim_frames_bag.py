@@ -132,10 +132,20 @@ def test_video_background_loops_and_fills(tmp_path, setup):
 
 
 def test_motion_blur_kernel():
-    assert motion_blur_kernel(np.array([0.3, 0.2])) is None
-    k = motion_blur_kernel(np.array([6.0, 0.0]))
-    assert k.sum() == pytest.approx(1.0)
-    assert k[k.shape[0] // 2].sum() > 0.9  # a horizontal line
+    """A smear of L px (L even) along a row, a column or a diagonal spreads each point evenly over
+    the L + 1 pixel centres it passes, centred on the kernel's middle."""
+    assert motion_blur_kernel(np.array([0.3, 0.2])) is None  # under a pixel: no blur
+    expected = np.zeros((7, 7))
+    expected[3, :] = 1 / 7  # 6 px to the right (or left): the whole middle row
+    np.testing.assert_allclose(motion_blur_kernel(np.array([6.0, 0.0])), expected, atol=1e-7)
+    np.testing.assert_allclose(motion_blur_kernel(np.array([-6.0, 0.0])), expected, atol=1e-7)
+    expected = np.zeros((9, 9))
+    expected[:, 4] = 1 / 9  # 8 px up: the whole middle column
+    np.testing.assert_allclose(motion_blur_kernel(np.array([0.0, -8.0])), expected, atol=1e-7)
+    diagonal = motion_blur_kernel(np.array([4.0, 4.0]))  # 4 px right and down: 5 pixels of the diagonal
+    expected = np.zeros((7, 7))
+    expected[np.arange(1, 6), np.arange(1, 6)] = 1 / 5
+    np.testing.assert_allclose(diagonal, expected, atol=1e-7)
 
 
 @pytest.fixture(scope="module")

@@ -1,8 +1,10 @@
-"""§5.4.1 likelihoods: (5.14) against a per-pixel loop oracle, batching, ranking, frame checks."""
+"""§5.4.1 likelihoods: (5.14) against a per-pixel loop oracle, (5.15)–(5.17) against a per-point loop
+oracle (OpenCV edges, scipy distances), batching, ranking, frame checks."""
 
 import cv2
 import numpy as np
 import pytest
+from scipy import ndimage
 
 from uav_landing_vision.camera import load_camera_info_yaml
 from uav_landing_vision.config import ConfigError
@@ -120,6 +122,91 @@ def test_a_tile_with_an_empty_region_scores_zero(renderer):
     lik = ColourHistogramLikelihood(renderer)
     lik.prepare(frame)
     np.testing.assert_array_equal(lik.score_batch(SilhouetteBatch(masks, boxes, np.ones(2, bool))), [0.0, 0.0])
+
+
+def edge_frame(width, height):
+    """A flat grey frame with a bright rectangle, a dark disc and a thin bright bar: sparse edges."""
+    frame = np.full((height, width, 3), 128, np.uint8)
+    frame[200:420, 300:650] = (230, 220, 200)
+    cv2.circle(frame, (900, 300), 90, (20, 30, 40), -1)
+    cv2.line(frame, (100, 600), (500, 700), (250, 250, 250), 3)
+    return frame
+
+
+def oracle_edges(frame):
+    """The thesis's edge map by OpenCV: Canny (50, 150, L2 gradient) of the grey frame blurred by σ = 1 px."""
+    grey = cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY)
+    return cv2.Canny(cv2.GaussianBlur(grey, (0, 0), 1.0), 50.0, 150.0, L2gradient=True) > 0
+
+
+def oracle_outline(mask, box):
+    """[(point, outward normal)] of a tile by explicit loops: a point mid-way between each inside
+    tile pixel and each outside 4-neighbour; the normal is the gradient of the mask smoothed by the
+    5×5 binomial kernel (scipy), at the inside pixel, or the crack's direction where it vanishes."""
+    t = mask.shape[0]
+    b = np.array([1, 4, 6, 4, 1]) / 16
+    smooth = ndimage.convolve(np.pad(mask.astype(float), 3), np.outer(b, b), mode="constant")
+    scale = (box[2] - box[0]) / t
+    out = []
+    for r in range(t):
+        for c in range(t):
+            for dr, dc in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+                if not mask[r, c] or (0 <= r + dr < t and 0 <= c + dc < t and mask[r + dr, c + dc]):
+                    continue
+                g = np.array([smooth[r + 3, c + 2] - smooth[r + 3, c + 4], smooth[r + 2, c + 3] - smooth[r + 4, c + 3]])
+                n = g / np.linalg.norm(g) if np.linalg.norm(g) > 1e-6 else np.array([dc, dr], float)
+                out.append((np.array([box[0] + (c + 0.5 + 0.5 * dc) * scale, box[1] + (r + 0.5 + 0.5 * dr) * scale]), n))
+    return out
+
+
+def _pixel(point):
+    return int(np.floor(point[1] + 0.5)), int(np.floor(point[0] + 0.5))
+
+
+def oracle_distance_transform(frame, mask, box, sigma=50.0):
+    """(5.16)–(5.17) for one tile: D the exact Euclidean distance to the nearest edge pixel (scipy)
+    in image diagonals, at most 1, read at the pixel under each outline point inside the frame."""
+    h, w = frame.shape[:2]
+    dist = np.minimum(ndimage.distance_transform_edt(~oracle_edges(frame)) / np.hypot(w, h), 1.0)
+    d = [dist[_pixel(p)] for p, _ in oracle_outline(mask, box) if -0.5 <= p[0] < w - 0.5 and -0.5 <= p[1] < h - 0.5]
+    return np.exp(-sigma * np.mean(d)) if d else 0.0
+
+
+def oracle_contour(frame, mask, box, search=15):
+    """(5.15) for one tile (λ_v = λ_e = 1): each outline point inside the frame looks along its
+    normal at 0, ±1, ±2, … ±search px for the nearest edge pixel; ē is search where none is found."""
+    h, w = frame.shape[:2]
+    edges = oracle_edges(frame)
+    visible, found = 0, []
+    for p, n in oracle_outline(mask, box):
+        if not (-0.5 <= p[0] < w - 0.5 and -0.5 <= p[1] < h - 0.5):
+            continue
+        visible += 1
+        for step in [0] + [s for k in range(1, search + 1) for s in (k, -k)]:
+            row, col = _pixel(p + step * n)
+            if 0 <= col < w and 0 <= row < h and edges[row, col]:
+                found.append(abs(step))
+                break
+    if not visible:
+        return 0.0
+    return np.exp(-(visible - len(found)) / visible) * np.exp(-(np.mean(found) if found else float(search)))
+
+
+def test_edge_metrics_match_a_per_point_oracle(renderer):
+    """Tiles over the corner of the rectangle, on the disc, across the frame's corner and along the
+    rectangle: the distance-transform and contour scores are those of the loop oracles."""
+    frame = edge_frame(renderer.width, renderer.height)
+    _, masks, _ = hand_made_tiles(renderer)
+    r, c = np.mgrid[:16, :16]
+    masks = np.concatenate([masks, (r < 10).astype(np.uint8)[None]])  # a band: the rectangle, roughly
+    boxes = np.array([[280.3, 190.7, 440.3, 350.7], [820.0, 210.0, 1000.0, 390.0], [-30.0, 600.0, 50.0, 680.0],
+                      [296.0, 196.0, 656.0, 556.0]])
+    batch = SilhouetteBatch(masks, boxes, np.ones(4, bool))
+    for name, oracle in (("distance_transform", oracle_distance_transform), ("contour", oracle_contour)):
+        lik = make_likelihood(name, renderer)
+        lik.prepare(frame)
+        want = [oracle(frame, masks[i], boxes[i]) for i in range(4)]
+        np.testing.assert_allclose(lik.score_batch(batch), want, rtol=1e-6, atol=0, err_msg=name)
 
 
 SHIFTS = np.array([[0.0, 0.0], [0.5, 0.0], [-1.25, 0.75], [30.0, -20.0]])

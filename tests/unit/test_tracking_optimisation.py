@@ -191,6 +191,27 @@ def test_constriction_coefficient_is_5_22():
     assert ConstrictedPSOConfig(k=0.5).gamma == pytest.approx(0.5 * 0.729843788, rel=1e-9)
 
 
+def test_constricted_pso_draws_gaussian_factors_only_where_both_pulls_agree():
+    """§5.5.3: r1 and r2 are min(|N(0, 1)|, 1) (scipy's normal law: mean 2(φ(0) − φ(1)) + P(|Z| > 1),
+    a third of them exactly 1) where p_best − p and p_neigh − p have the same sign in all six
+    dimensions, uniform on [0, 1) otherwise. Without inertia and with a pull to the neighbourhood's
+    best of ±1e-300 the velocity is Γ c1 r1 (p_best − p), which gives r1."""
+    from scipy.stats import norm
+
+    n, pso = 20000, ConstrictedPSO()
+    c = pso.config
+    to_best = np.ones((n, 6))
+    agree, mixed = np.ones(6), np.array([1.0, 1.0, 1.0, 1.0, 1.0, -1.0])
+    for sign, mean, at_one in ((agree, 2 * (norm.pdf(0) - norm.pdf(1)) + 2 * norm.sf(1), 2 * norm.sf(1)),
+                               (-agree, 0.5, 0.0), (mixed, 0.5, 0.0)):
+        velocity = pso._velocity(np.zeros((n, 6)), to_best, sign * 1e-300 * to_best, np.random.default_rng(4))
+        r1 = velocity / (c.gamma * c.c1)
+        assert 0.0 <= r1.min() and r1.max() <= 1.0 + 1e-12
+        assert abs(r1.mean() - mean) < 5 * r1.std() / np.sqrt(r1.size), (sign, r1.mean(), mean)
+        ones = np.mean(np.abs(r1 - 1.0) < 1e-12)
+        assert abs(ones - at_one) < 5 * np.sqrt(at_one * (1 - at_one) / r1.size) + 1e-12, (sign, ones, at_one)
+
+
 def test_neighbourhood_distance_is_5_19():
     pos = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
     quat = np.array([[0.0, 0.0, 0.0, 1.0], Rotation.from_euler("z", 90, degrees=True).as_quat()])
@@ -209,6 +230,20 @@ def test_crossover_takes_every_attribute_from_one_parent():
     b = np.concatenate([pb, quat_to_euler_zyx(qb)])
     from_a, from_b = np.isclose(genes, a), np.isclose(genes, b)
     assert np.all(from_a | from_b) and from_a.any(axis=0).all() and from_b.any(axis=0).all()
+
+
+def test_gabf_bootstrap_replaces_only_the_particles_below_delta():
+    """Algorithm 10's first bootstrap move: a particle scoring under δ becomes a Top A member plus
+    Σ_init noise (σ 0.1 m: within 0.6 m of one); one scoring δ or more is kept as it is."""
+    p = start(m=40)
+    top = p.take([0, 1, 2])
+    weight = np.where(np.arange(40) % 2 == 0, 0.09, 0.11)  # either side of δ = 0.1
+    moved = GAbF()._move(p.with_weight(weight), top, "bootstrap", 0, np.random.default_rng(0))
+    kept = weight >= GAbFConfig().delta
+    np.testing.assert_array_equal(moved.pos[kept], p.pos[kept])
+    np.testing.assert_array_equal(moved.quat[kept], p.quat[kept])
+    to_top = np.linalg.norm(moved.pos[~kept, None] - top.pos[None], axis=2).min(axis=1)
+    assert np.all(to_top < 0.6) and not np.any(np.all(moved.pos[~kept] == p.pos[~kept], axis=1))
 
 
 def test_gabf_stops_after_the_fine_phase_on_an_easy_objective():

@@ -2,7 +2,6 @@
 
 import json
 
-import numpy as np
 import pytest
 
 from uav_landing_vision.camera import load_camera_info_yaml
@@ -55,7 +54,10 @@ def test_command_writes_json_and_refuses_bad_settings(tmp_path, capsys):
                  "--optimisers", "constricted_pso", "--pfo-schedule", "3phase", "--quiet", "--json", str(out)]) == 0
     written = json.loads(out.read_text())
     assert list(written["stats"]["10"]) == ["boosting", "constricted_pso"]
-    assert np.isfinite(written["best_likelihood"]["10"]["constricted_pso"]) or written["failures"]["10"] == 1
+    # the one sample at 10 m gives a box (the wings span ~200 px): it is scored, and the swarm keeps its best start
+    assert written["failures"]["10"] == 0
+    best = written["best_likelihood"]["10"]
+    assert 0.0 < best["boosting"] <= best["constricted_pso"] <= 1.0
     assert "Mod. PSO" in capsys.readouterr().out
     with pytest.raises(SystemExit, match="optimisers must be among"):
         main(["eval-optimisers", "--optimisers", "annealing"])
