@@ -40,6 +40,13 @@ def test_bad_scenarios_are_clear_errors(tmp_path, text, match):
         load_scenario(path)
 
 
+def test_a_scenario_that_is_not_text_is_a_clear_error(tmp_path):
+    path = tmp_path / "latin1.yaml"
+    path.write_bytes("approach: {}  # caméra\n".encode("latin-1"))
+    with pytest.raises(ScenarioError, match="cannot read scenario"):
+        load_scenario(path)
+
+
 def test_unknown_scenario_name():
     with pytest.raises(ScenarioError, match="no shipped scenario"):
         load_scenario("nope")

@@ -120,7 +120,7 @@ def load_scenario(name_or_path) -> Scenario:
         except FileNotFoundError as exc:
             raise ScenarioError(f"no shipped scenario named {name_or_path!r}: {exc}") from exc
     try:
-        doc = yaml.load(path.read_text(), UniqueKeyLoader)
+        doc = yaml.load(path.read_bytes(), UniqueKeyLoader)  # bytes: an undecodable file is a YAMLError
     except (OSError, yaml.YAMLError) as exc:
         raise ScenarioError(f"cannot read scenario {path}: {exc}") from exc
     if not isinstance(doc, dict):
