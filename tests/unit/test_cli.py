@@ -103,3 +103,20 @@ def test_a_closed_output_does_not_stop_the_graphs_shutdown(tmp_path, monkeypatch
 
     monkeypatch.setattr("sys.stdout", Closed())
     Graph([], tmp_path, {}, {}, stop_timeout=1.0)._say("stopping")  # raised, and aborted the escalation
+
+
+def test_score_says_how_many_frames_its_tables_cover(tmp_path, capsys):
+    """The statistics leave the lost frames out; the printed tables say how many there were,
+    with or without a report folder."""
+    import json
+
+    (tmp_path / "truth.csv").write_text("stamp_ns,x,y,z,qx,qy,qz,qw\n10,0,0,5,0,0,0,1\n20,0,0,6,0,0,0,1\n"
+                                        "30,0,0,7,0,0,0,1\n40,0,0,8,0,0,0,1\n")
+    (tmp_path / "est.csv").write_text("stamp_ns,x,y,z,qx,qy,qz,qw\n10,0,0,5.5,0,0,0,1\n30,0,0,7,0,0,0,1\n"
+                                      "40,0,0,8,nan,nan,nan,nan\n")
+    argv = ["score", "--truth", str(tmp_path / "truth.csv"), "--estimate", str(tmp_path / "est.csv"), "--name", "C4N2"]
+    assert main([*argv, "--json", str(tmp_path / "s.json")]) == 0
+    assert "C4N2: statistics over 2 of 4 frames (50.0 % lost)" in capsys.readouterr().out
+    assert json.loads((tmp_path / "s.json").read_text())["variants"]["C4N2"]["lost_frames_pct"] == 50.0
+    assert main([*argv, "--json", str(tmp_path / "r.json"), "--report-dir", str(tmp_path / "report")]) == 0
+    assert "C4N2: statistics over 2 of 4 frames (50.0 % lost)" in capsys.readouterr().out

@@ -178,3 +178,11 @@ def test_median_errors_by_depth_hand_made():
     assert rows["0-8 m"].split("- (0)")[0].strip() == "0.20 | 2.00 (3)"
     assert "1.00 | 5.00 (1)" in rows["8-60 m"] and "4.00 | 9.00 (1)" in rows["60+ m"]
     assert "0.30 | 3.00 (5)" in rows["all"] and rows["all"].rstrip().endswith("- (0)")
+
+
+def test_one_value_has_no_sample_standard_deviation():
+    """SD (n − 1) of a single error is undefined, not a spread of zero (numpy gives NaN too)."""
+    s = error_statistics([np.nan, 2.5])
+    assert s["median"] == s["mae"] == s["rmse"] == 2.5
+    assert np.isnan(s["sd"])
+    assert error_statistics([2.5, 3.5])["sd"] == pytest.approx(np.std([2.5, 3.5], ddof=1))

@@ -16,7 +16,15 @@ def register(sub) -> None:
 
 
 def _run(args) -> int:
-    from .report import format_table, make_summary, save_summary, statistics_table, variant_summary, write_report
+    from .report import (
+        format_table,
+        frames_scored,
+        make_summary,
+        save_summary,
+        statistics_table,
+        variant_summary,
+        write_report,
+    )
     from .score import score_files
     from .statistics import ROTATION_COLUMNS, TRANSLATION_COLUMNS
 
@@ -33,6 +41,7 @@ def _run(args) -> int:
     else:
         for kind, columns, unit in (("translation", TRANSLATION_COLUMNS, "m"), ("rotation", ROTATION_COLUMNS, "deg")):
             print(format_table(statistics_table({args.name: errors}, columns), f"{sequence}: {kind} error ({unit})"))
+        print(frames_scored({args.name: errors}))  # the tables leave the lost frames out: say how many
     doc = make_summary(sequence, len(errors["euclidean"]), {args.name: variant_summary(errors, ms)})
     args.json.parent.mkdir(parents=True, exist_ok=True)
     save_summary(args.json, doc)

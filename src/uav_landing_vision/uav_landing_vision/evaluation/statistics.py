@@ -3,7 +3,7 @@
 Rows: 5/25/50/75/95 % percentiles, outlier % (outside 1.5 × IQR of the quartiles), MAE,
 RMSE and SD. The thesis tables print an RMSE smaller than the MAE, which no data set can have;
 ``rmse`` here is the true root mean square (DESIGN §3). Percentiles are numpy's linear
-interpolation; SD is the sample standard deviation (n − 1).
+interpolation; SD is the sample standard deviation (n − 1), undefined (NaN) for one value.
 """
 
 import numpy as np
@@ -33,7 +33,7 @@ def error_statistics(values) -> dict[str, float]:
         "outlier_pct": float(100.0 * outliers.mean()),
         "mae": float(np.mean(np.abs(v))),
         "rmse": float(np.sqrt(np.mean(v * v))),
-        "sd": float(np.std(v, ddof=1)) if v.size > 1 else 0.0,
+        "sd": float(np.std(v, ddof=1)) if v.size > 1 else float("nan"),  # one value: no spread to estimate
     }
 
 
