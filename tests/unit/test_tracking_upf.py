@@ -20,6 +20,7 @@ from uav_landing_vision.tracking.particles import ParticleSet
 from uav_landing_vision.tracking.refinement import RotationRefinementConfig
 from uav_landing_vision.tracking.track_state import TrackMonitor, TrackState, TrackStateConfig
 from uav_landing_vision.tracking.upf import (
+    MAX_PREDICTION_STEPS,
     Tracker,
     TrackerConfig,
     coasting_covariance,
@@ -28,6 +29,7 @@ from uav_landing_vision.tracking.upf import (
     load_tracker_config,
     parse_variant,
     particle_covariance,
+    prediction_steps,
 )
 
 CAMERA = CameraModel(320, 240, [[280.0, 0, 160.0], [0, 280.0, 120.0], [0, 0, 1]])
@@ -133,6 +135,47 @@ def test_a_frame_not_after_the_last_is_refused_before_anything_changes(renderer,
     assert tracker.particles is particles and tracker.state == results[-1].state
     tracker.reset()  # a new time-line: earlier stamps are frames again
     assert tracker.step(frame, 0, hypotheses(8)).has_pose
+
+
+def test_a_lost_track_still_refuses_a_frame_not_after_the_last(renderer, frame):
+    """Losing the track (here: an empty sky) is no new time-line; only reset() starts one."""
+    track = TrackStateConfig(acquire_likelihood=0.1, lost_likelihood=0.01, lost_frames=1)
+    tracker = Tracker(TrackerConfig.from_variant("C4N0", particles=40, boosted=10, track=track), CAMERA, renderer)
+    assert tracker.step(frame, 10, hypotheses(1)).has_pose
+    assert tracker.step(SKY, 11, hypotheses(2)).state == TrackState.LOST
+    with pytest.raises(ValueError, match="not after the last one"):
+        tracker.step(frame, 5, hypotheses(3))
+    assert tracker.step(SKY, 12, None).state == TrackState.LOST  # nothing to track at all
+    with pytest.raises(ValueError, match="not after the last one"):
+        tracker.step(frame, 12, hypotheses(3))
+    tracker.reset()
+    assert tracker.step(frame, 5, hypotheses(3)).has_pose
+
+
+def test_prediction_steps_are_the_stamp_gap_in_whole_dt():
+    dt_ns = 34_000_000
+    assert prediction_steps(None, 0.034) == 1  # the first frame
+    assert [prediction_steps(g, 0.034) for g in (1, dt_ns - 1, dt_ns, dt_ns + 1, 3 * dt_ns, int(2.4 * dt_ns))] == [
+        1, 1, 1, 1, 3, 2]
+    assert prediction_steps(10**18, 0.034) == MAX_PREDICTION_STEPS  # a clock jump costs a bounded prediction
+
+
+@pytest.mark.parametrize("variant", ["C3N0", "C4N0", "C5N0"])
+def test_the_prediction_spans_the_frames_the_tracker_did_not_see(renderer, frame, variant):
+    """(3.12) over the time since the last frame: three Δt after the last one (two frames
+    dropped), carried particles moving at v are predicted 3·v·Δt on, not v·Δt."""
+    dt_ns = 34_000_000
+    cfg = TrackerConfig.from_variant(variant, particles=40, boosted=10, refine=RotationRefinementConfig())
+    tracker = Tracker(cfg, CAMERA, renderer)
+    for k in range(2):
+        tracker.step(frame, k * dt_ns, hypotheses(100 + k))
+    v = np.array([4.0, 0.0, 0.0])
+    ts = tracker.filters.trans_state
+    tracker.filters.trans_state = replace(ts, x=np.hstack([ts.x[:, :3], np.tile(v, (len(ts.x), 1))]))
+    before = tracker.particles.pos.mean(axis=0)
+    assert tracker.step(frame, 4 * dt_ns, None).has_pose  # frames 2 and 3 not seen, no hypotheses
+    shift = tracker.particles.pos.mean(axis=0) - before
+    assert shift[0] == pytest.approx(3 * v[0] * 0.034, abs=0.06)  # along v; one Δt would be 0.136 m
 
 
 def test_same_seed_same_estimates_other_seed_differs(renderer, frame):

@@ -72,10 +72,12 @@ class MotionBank:
     def take(self, idx) -> None:
         self.trans_state, self.rot_state = self.trans_state.take(idx), self.rot_state.take(idx)
 
-    def predict(self) -> None:
-        """Constant-velocity prediction (3.12) of every filter (A.12–A.21, Alg. 4, Alg. 6)."""
-        self.trans_state = self.translation.predict(self.trans_state)
-        self.rot_state = self.rotation.predict(self.rot_state)
+    def predict(self, steps: int = 1) -> None:
+        """Constant-velocity prediction (3.12) of every filter (A.12–A.21, Alg. 4, Alg. 6), ``steps``
+        times Δt ahead (the frames since the last one, :func:`.upf.prediction_steps`)."""
+        for _ in range(steps):
+            self.trans_state = self.translation.predict(self.trans_state)
+            self.rot_state = self.rotation.predict(self.rot_state)
 
     def update(self, z_pos: np.ndarray, z_quat: np.ndarray) -> None:
         """Update every filter with the one measurement z_t (§5.2.3)."""

@@ -9,7 +9,8 @@ Per frame (:meth:`Tracker.step`), with M particles of which M0 = M − boosted a
    particle — UKF on translation and UKF (C3), UBiF (C4) or UBiGaF (C5) on rotation — predicted
    from t−1, then updated with the measurement z_t, the pose of the mix's best-likelihood
    particle (5.2.3–5.2.4). The carried filters are predicted before z_t is chosen, so z_t is
-   picked among poses of time t.
+   picked among poses of time t. The prediction spans the frames' stamps, in whole Δt
+   (:func:`prediction_steps`).
 3. **Weighting and resampling** (§5.4): one batched render + score, then the configured
    App. B scheme back to M particles. Ours: every score (weighting, z_t, optimisation,
    refinement) is the likelihood times a depth prior about the boosted depth (:func:`depth_prior`)
@@ -221,6 +222,20 @@ def constant_velocity_prediction(particles: ParticleSet, cfg: MotionFilterConfig
     return ParticleSet(pos, quat_normalise(quat), vel, particles.omega + xi, particles.weight, particles.state)
 
 
+MAX_PREDICTION_STEPS = 60  # ~2 s of Δt: bounds one frame's prediction cost after a long gap or a clock jump
+
+
+def prediction_steps(gap_ns: int | None, dt: float) -> int:
+    """How many Δt steps of the motion model (3.12) the prediction takes from the last frame to
+    one ``gap_ns`` later: the gap in Δt, rounded, at least 1 and at most
+    :data:`MAX_PREDICTION_STEPS` (1 for the first frame). The thesis's filters advance one Δt
+    per frame (§6.7.1, Δt ≈ 0.034 s, every frame tracked); frames the tracker does not see (a
+    tracker slower than the camera, a dropped frame) make gaps of several Δt."""
+    if gap_ns is None:
+        return 1
+    return int(min(max(round(gap_ns * 1e-9 / dt), 1), MAX_PREDICTION_STEPS))
+
+
 def depth_prior(depth: np.ndarray, anchor: float, sigma: float, floor: float) -> np.ndarray:
     """Ours (not in the thesis): ``floor + (1 − floor)·exp(−½((z/z_b − 1)/σ)²)`` of each depth z about
     the boosted depth z_b (median weak-perspective depth (4.5) of the frame's boosted hypotheses).
@@ -323,10 +338,15 @@ class Tracker:
         return self.config.boosted
 
     def reset(self) -> None:
-        """Forget the track (the next frame with hypotheses re-initialises it)."""
+        """Forget the track (the next frame with hypotheses re-initialises it) and the last
+        stamp (a new time-line)."""
+        self._drop_track()
+        self._last_stamp_ns = None
+
+    def _drop_track(self) -> None:
+        """Forget the track (LOST); frames must still come after the last one."""
         self.particles = None
         self._turn_anchor = None
-        self._last_stamp_ns = None
         self.window.reset()
         self.monitor.lost()
 
@@ -338,6 +358,8 @@ class Tracker:
         if self._last_stamp_ns is not None and stamp_ns <= self._last_stamp_ns:
             raise ValueError(f"frame stamp {stamp_ns} ns is not after the last one ({self._last_stamp_ns} ns); "
                              "reset() the tracker for a new time-line")
+        steps = prediction_steps(None if self._last_stamp_ns is None else stamp_ns - self._last_stamp_ns,
+                                 self.config.motion.dt)
         self._last_stamp_ns = int(stamp_ns)
         clock = _Clock()
         self.likelihood.prepare(frame)
@@ -345,10 +367,10 @@ class Tracker:
         new = _hypothesis_set(hypotheses, self.hypotheses_needed())
         self._coasting = 0 if new is not None else self._coasting + 1
         self._anchor = self._boosted_depth(new)
-        mixed = self._mix(new)
+        mixed = self._mix(new, steps)
         clock.lap("proposal")
         if mixed is None:
-            self.reset()
+            self._drop_track()
             return self._empty(stamp_ns, clock)
         scores = np.full(len(mixed), np.nan)
         if self.filters is not None:
@@ -403,8 +425,9 @@ class Tracker:
 
     # --- Algorithm 3 steps ----------------------------------------------------------------------
 
-    def _mix(self, new: ParticleSet | None) -> ParticleSet | None:
-        """Step 1: the best M0 carried particles (predicted) and the new boosted ones (Alg. 3)."""
+    def _mix(self, new: ParticleSet | None, steps: int = 1) -> ParticleSet | None:
+        """Step 1: the best M0 carried particles (predicted ``steps`` Δt ahead, :func:`prediction_steps`)
+        and the new boosted ones (Alg. 3)."""
         cfg = self.config
         self._fresh = new
         if self.particles is None or cfg.variant == "C1":
@@ -418,10 +441,11 @@ class Tracker:
         room = cfg.particles - (0 if new is None else len(new))
         kept = self.particles.take(np.arange(min(len(self.particles), room)))
         if self.filters is None:  # C2: transition prior (5.2.2)
-            kept = constant_velocity_prediction(kept, cfg.motion, self.rng)
+            for _ in range(steps):
+                kept = constant_velocity_prediction(kept, cfg.motion, self.rng)
         else:  # C3-C5: the carried filters predicted to t (5.2.3)
             self.filters.take(np.arange(len(kept)))
-            self.filters.predict()
+            self.filters.predict(steps)
             pos, vel, quat, omega = self.filters.estimates()
             kept = ParticleSet(pos, quat, vel, omega, kept.weight)
         kept = ParticleSet(kept.pos, kept.quat, kept.vel, kept.omega, kept.weight)
@@ -491,7 +515,7 @@ class Tracker:
             particles = ParticleSet(particles.pos, particles.quat, particles.vel, particles.omega, particles.weight,
                                     {"slot": np.arange(len(particles))})
         if state == TrackState.LOST:
-            self.reset()
+            self._drop_track()
             return self._empty(stamp_ns, clock, best_w)
         if best_w <= 0.0:  # nothing scored: carry the set on, no estimate this frame
             self.particles = particles.with_weight(np.full(len(particles), 1.0 / len(particles)))
