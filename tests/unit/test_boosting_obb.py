@@ -74,6 +74,31 @@ def test_angle_is_periodic_180():
         assert other.aspect == pytest.approx(a.aspect, rel=1e-5)
 
 
+@pytest.mark.parametrize("theta", [0.0, 30.0, 45.0, 60.0, 90.0, 120.0])
+def test_square_angle_does_not_follow_opencvs_corner_order(monkeypatch, theta):
+    """A square's θ is defined mod 90°: it is the one in [0, 90), not the direction of whichever
+    side ``cv2.boxPoints`` lists first: OpenCV 4.6 (minAreaRect angle in (0°, 90°]) starts one
+    corner off from 5.0 (in [−90°, 0°)), and the same FAST corners gave θ 90° on one, 0° on the
+    other. The rolled corners stand in for the other version."""
+    pts = cv2.boxPoints(((100.0, 80.0), (40.0, 40.0), theta))
+    box = obb_from_points(pts)
+    box_points = cv2.boxPoints
+    monkeypatch.setattr(cv2, "boxPoints", lambda rect: np.roll(box_points(rect), 1, axis=0))
+    other_order = obb_from_points(pts)
+    assert box.theta == pytest.approx(theta % 90.0, abs=1e-3)
+    assert other_order.theta == pytest.approx(box.theta, abs=1e-3)
+    assert obb_from_points(np.array([[3, 3], [3, 12], [12, 3], [12, 12], [7, 8]], float)).theta == 0.0
+
+
+def test_non_square_angle_does_not_follow_opencvs_corner_order(monkeypatch):
+    pts = cv2.boxPoints(((100.0, 80.0), (40.0, 39.9), 120.0))
+    box = obb_from_points(pts)
+    box_points = cv2.boxPoints
+    monkeypatch.setattr(cv2, "boxPoints", lambda rect: np.roll(box_points(rect), 1, axis=0))
+    assert obb_from_points(pts) == pytest.approx(box, abs=1e-3)
+    assert box.theta == pytest.approx(120.0, abs=1e-3)
+
+
 def test_rotated_shape_box_contains_all_points_minimally():
     rng = np.random.default_rng(3)
     pts = rng.normal(size=(300, 2)) * [60.0, 12.0]
@@ -148,6 +173,9 @@ def test_fast_finds_no_corner_at_a_tight_roi_edge():
         (np.zeros((100, 100), np.uint8), (0, 0, 0, 10), "empty"),
         (np.zeros((100, 100), np.uint8), (200, 10, 20, 20), "outside"),
         (np.zeros((100, 100), np.uint8), (1, 2, 3), "four numbers"),
+        (np.zeros((100, 100), np.uint8), (float("inf"), 2, 3, 4), "four numbers"),
+        (np.zeros((100, 100), np.uint8), (1, 2, float("-inf"), 4), "four numbers"),
+        (np.zeros((100, 100), np.uint8), (1, 2, 3, float("nan")), "four numbers"),
     ],
 )
 def test_bad_frame_or_roi_is_a_clear_error(frame, roi, message):

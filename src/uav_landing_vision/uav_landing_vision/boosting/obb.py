@@ -4,6 +4,9 @@ Convention (image pixels, x right, y down, OpenCV pixel centres): ``w`` is the l
 ``h`` the shorter, so the aspect ratio R = w/h (4.3) is ≥ 1; ``θ`` is the direction of the
 longer side, in degrees from the image x axis towards the image y axis (clockwise on screen),
 wrapped to [0, 180) — a box is the same box turned by 180°, so θ is periodic with period 180.
+A square's two sides qualify alike: its θ is the one in [0, 90), whichever side OpenCV lists first
+(``cv2.minAreaRect``'s angle is in (0°, 90°] in OpenCV 4.6, in [−90°, 0°) in 5.0, so
+``cv2.boxPoints`` starts from another corner).
 """
 
 from dataclasses import dataclass
@@ -13,6 +16,7 @@ import cv2
 import numpy as np
 
 THETA_PERIOD_DEG = 180.0
+SQUARE_TOL_PX = 1e-3  # sides this close are equal: float32 corner noise is ~1e-4 px in a 1280 px image
 
 
 class Obb(NamedTuple):
@@ -96,6 +100,8 @@ def obb_from_points(points: np.ndarray) -> Obb | None:
     if h < 1.0:
         return None
     theta = float(np.degrees(np.arctan2(long_edge[1], long_edge[0]))) % THETA_PERIOD_DEG
+    if w - h <= SQUARE_TOL_PX:  # a square: either side is "the longer", take the one in [0, 90)
+        theta %= THETA_PERIOD_DEG / 2
     return Obb(theta, float(cx), float(cy), w, h)
 
 
@@ -120,7 +126,7 @@ def check_roi(roi, width: int, height: int) -> tuple[int, int, int, int]:
     """Validate a ROI ``(x, y, w, h)`` (sensor_msgs/RegionOfInterest) and clip it to the image."""
     try:
         x, y, w, h = (int(round(float(v))) for v in roi)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):  # OverflowError: an infinite value
         raise ValueError(f"ROI must be four numbers (x, y, width, height), got {roi!r}") from None
     if w <= 0 or h <= 0:
         raise ValueError(f"ROI is empty: {w}x{h}")
