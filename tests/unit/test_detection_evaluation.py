@@ -1,5 +1,5 @@
 """eval-detector: its arguments are checked before any frame is read; Fig. 4.4 near ties are
-counted."""
+counted; an operating threshold below the curve's floor sees its boxes."""
 
 import numpy as np
 import pytest
@@ -37,3 +37,51 @@ def test_near_ties_and_the_misses_they_explain_are_counted():
     assert r["runner_up_miss_margins"] == [0.0]
     extent = summarise([frame(label_frame(triangle, 100, 80, "extent"), [[0, 0, 5, 5]])], threshold=0.5)
     assert "truth_near_ties" not in extent
+
+
+def test_boxes_down_to_an_operating_threshold_below_the_curve_floor_are_counted(tmp_path, monkeypatch):
+    """The curve's boxes are scored down to 0.01; an operating threshold below that must still
+    see the boxes between it and 0.01 (a box scored 0.007 at threshold 0.005 is a false positive)."""
+    from uav_landing_vision.detection import detector as runtime
+    from uav_landing_vision.sim import load_scenario, simulate
+
+    simulate(load_scenario("normal"), tmp_path / "bag", frames=2, progress=False)
+
+    class OneWeakBox:  # a detector that honours its threshold: one box, off the UAV, scored 0.007
+        def __init__(self, config):
+            self.config = config
+
+        def detect(self, image):
+            keep = 0.007 >= self.config.score_threshold
+            return runtime.Detections(np.array([[0.0, 0.0, 10.0, 10.0]] * keep, np.float32).reshape(-1, 4),
+                                      np.array([0.007] * keep, np.float32))
+
+    monkeypatch.setattr(runtime, "Detector", OneWeakBox)
+    r = evaluate_bag(tmp_path / "bag", DetectorConfig(score_threshold=0.005), tmp_path / "out.json", progress=False)
+    assert r["frames"] == 2 and r["threshold"] == 0.005
+    assert r["false_positives_per_100_frames"] == 100.0 and r["precision"] == 0.0
+    assert r["curve"]["thresholds"] == pytest.approx([0.007, 0.007])
+
+
+def test_the_time_per_frame_is_that_of_the_detector_as_configured(tmp_path, monkeypatch):
+    """The curve's run (threshold 0.01, 20 boxes: with a verifier, many more crops) is not what
+    ms_per_frame reports: the detector with the configured settings is timed."""
+    from uav_landing_vision.detection import detector as runtime
+    from uav_landing_vision.detection import evaluation
+    from uav_landing_vision.sim import load_scenario, simulate
+
+    simulate(load_scenario("normal"), tmp_path / "bag", frames=2, progress=False)
+    clock = {"now": 0.0}
+
+    class Timed:  # each detect() advances a fake clock by 1 s at the curve's threshold, 5 ms at the configured one
+        def __init__(self, config):
+            self.config = config
+
+        def detect(self, image):
+            clock["now"] += 1.0 if self.config.score_threshold < 0.5 else 0.005
+            return runtime.Detections(np.zeros((0, 4), np.float32), np.zeros(0, np.float32))
+
+    monkeypatch.setattr(runtime, "Detector", Timed)
+    monkeypatch.setattr(evaluation.time, "perf_counter", lambda: clock["now"])
+    r = evaluate_bag(tmp_path / "bag", DetectorConfig(score_threshold=0.5), tmp_path / "out.json", progress=False)
+    assert r["ms_per_frame"] == pytest.approx(5.0)
