@@ -209,6 +209,23 @@ def test_edge_metrics_match_a_per_point_oracle(renderer):
         np.testing.assert_allclose(lik.score_batch(batch), want, rtol=1e-6, atol=0, err_msg=name)
 
 
+def test_distance_transform_is_exact_on_one_thread_or_several(renderer):
+    """D is the exact Euclidean distance to the nearest edge pixel (scipy), in image diagonals, bit
+    for bit, whether OpenCV runs on one thread or several (its float32 distances differ in their
+    last bits between the two, so scores differed from one machine to another)."""
+    frame = edge_frame(renderer.width, renderer.height)
+    exact = ndimage.distance_transform_edt(~oracle_edges(frame)) / np.hypot(renderer.width, renderer.height)
+    lik = make_likelihood("distance_transform", renderer)
+    threads = cv2.getNumThreads()
+    try:
+        for n in (1, 2):
+            cv2.setNumThreads(n)
+            lik.prepare(frame)
+            np.testing.assert_array_equal(lik._dt, np.minimum(exact, 1.0).astype(np.float32))
+    finally:
+        cv2.setNumThreads(threads)
+
+
 SHIFTS = np.array([[0.0, 0.0], [0.5, 0.0], [-1.25, 0.75], [30.0, -20.0]])
 
 

@@ -152,7 +152,12 @@ class DistanceTransformLikelihood(SilhouetteLikelihood):
             self._dt = np.ones(edges.shape, np.float32)
             return
         dt = cv2.distanceTransform(np.where(edges, 0, 255).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-        self._dt = np.minimum(dt / np.float32(diagonal), np.float32(1.0))
+        # OpenCV's float32 distances differ in their last bits between one thread and several; the
+        # exact squared distances are integers: round them and take the root again, so D is exact
+        # and the same on every machine.
+        dt = dt.astype(np.float64)
+        np.sqrt(np.rint(np.square(dt, out=dt), out=dt), out=dt)
+        self._dt = np.minimum(dt / diagonal, 1.0).astype(np.float32)
 
     def _score_visible(self, masks: np.ndarray, boxes: np.ndarray) -> np.ndarray:
         points, _, owner = outline_points(masks, boxes)
