@@ -4,15 +4,21 @@ import os
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
-from geometry_msgs.msg import PoseStamped
+from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
+from rclpy.serialization import serialize_message
+from rosbags.rosbag2 import Writer
+from rosbags.typesys import Stores, get_typestore
 from sensor_msgs.msg import Image
 from test_node_common import SMALL_CAMERA, frame_entries, rgb_frame, ros, write_bag  # noqa: F401 (fixture)
 
+from uav_landing_msgs.msg import TrackerStatus
+from uav_landing_vision.gcs.mavlink import open_link
 from uav_landing_vision.graph import GRAPH_NODES, node_command
 from uav_landing_vision.nodes.base import stamp_ns
 from uav_landing_vision.nodes.image import image_to_numpy
@@ -73,6 +79,56 @@ def test_bag_replayed_through_undistort_in_separate_processes(ros, ros_domain_id
     assert "[bag_player]" in output and "[undistort]" in output and "bag played; stopping the graph" in output
     assert f"acknowledged {frames}, ack timeouts 0, dropped 0" in output
     assert "all nodes stopped cleanly" in output
+
+
+def _tracked_poses_bag(path: Path, frames: int) -> Path:
+    """A recording of the tracker's output: a TRACKING status and a pose 30 -> 12 m out per frame,
+    stamped (and recorded) at the bag's time, 34 ms apart."""
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    with Writer(path, version=9) as writer:
+        status_conn = writer.add_connection("/uav/tracker_status", "uav_landing_msgs/msg/TrackerStatus",
+                                            msgdef="uint8 state\n", rihs01="RIHS01_" + "0" * 64)  # played by the installed type
+        pose_conn = writer.add_connection("/uav/pose", "geometry_msgs/msg/PoseWithCovarianceStamped", typestore=typestore)
+        for i in range(frames):
+            t = 1_700_000_000_000_000_000 + i * 34_000_000
+            status = TrackerStatus(state=TrackerStatus.TRACKING)
+            pose = PoseWithCovarianceStamped()
+            for header in (status.header, pose.header):
+                header.stamp.sec, header.stamp.nanosec = divmod(t, 1_000_000_000)
+            pose.header.frame_id = "camera_optical_frame"
+            pose.pose.pose.position.x, pose.pose.pose.position.y, pose.pose.pose.position.z = 0.5, -2.0, 30.0 - 0.2 * i
+            pose.pose.pose.orientation.w = 1.0
+            pose.pose.covariance = [0.01 if k % 7 == 0 else 0.0 for k in range(36)]
+            writer.write(status_conn, t, serialize_message(status))
+            writer.write(pose_conn, t, serialize_message(pose))
+    return path
+
+
+def test_a_replay_runs_the_nodes_on_the_bags_clock(ros_domain_id, tmp_path):
+    """Replayed poses carry the bag's stamps (here 2023): on the wall clock the GCS bridge found
+    every one stale and sent none. With --bag every node takes the player's /clock."""
+    frames = 90
+    receiver = open_link("udpin:127.0.0.1:0", 255, 190)
+    log = tmp_path / "graph.log"
+    try:
+        graph = _graph(
+            ros_domain_id, "--bag", str(_tracked_poses_bag(tmp_path / "bag", frames)), "--nodes", "gcs_bridge,bag_player",
+            "--param", "bag_player:mode=timed", "--param", "bag_player:ready_topics=[/uav/pose,/uav/tracker_status]",
+            "--param", f"gcs_bridge:mavlink.connection=udpout:127.0.0.1:{receiver.port.getsockname()[1]}", log=log,
+        )
+        sent = []
+        deadline = time.monotonic() + PROCESS_TIMEOUT_S
+        while graph.poll() is None and time.monotonic() < deadline:
+            msg = receiver.recv_match(blocking=True, timeout=0.1)
+            if msg is not None:
+                sent.append(msg.get_type())
+        code = _finish(graph)
+    finally:
+        receiver.close()
+    output = log.read_text()
+    assert code == 0, output
+    # One ODOMETRY per pose taken, at most 10 a second of bag time (3 s of poses): ~30.
+    assert sent.count("ODOMETRY") >= 20, (sent, output)
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGHUP], ids=["ctrl_c", "hangup"])

@@ -2,13 +2,17 @@
 console scripts, parameter files installed to share/, and the same node list as ``uav-landing graph``."""
 
 import ast
+import importlib.util
 import py_compile
 import subprocess
 import sys
+import types
 from glob import glob
 from pathlib import Path
 
-from uav_landing_vision.graph import GRAPH_NODES, PLAYER
+import yaml
+
+from uav_landing_vision.graph import GRAPH_NODES, PIPELINE_TOPICS, PLAYER, _plan
 
 PACKAGE_DIR = Path(__file__).parents[2] / "src" / "uav_landing_vision"
 LAUNCH = PACKAGE_DIR / "launch" / "landing_vision.launch.py"
@@ -39,11 +43,67 @@ def test_launch_file_compiles(tmp_path):
 def test_launch_and_graph_start_the_same_nodes_each_with_script_module_and_parameters():
     launch = _assignments(LAUNCH)
     assert set(launch["NODES"]) | {launch["PLAYER"]} == set(GRAPH_NODES) and launch["PLAYER"] == PLAYER
-    assert "from uav_landing_vision.graph import PIPELINE_TOPICS" in LAUNCH.read_text()  # the graph's links
+    assert "from uav_landing_vision.graph import replay_ready_topics" in LAUNCH.read_text()  # the graph's links
     scripts = _console_scripts()
     for name in GRAPH_NODES:
         assert scripts[name] == f"uav_landing_vision.nodes.{name}:main"
         assert (PACKAGE_DIR / "uav_landing_vision" / "nodes" / f"{name}.py").is_file()
+
+
+def _launch_nodes(monkeypatch, bag: str, config_dir: str) -> dict:
+    """The parameters of each node the launch file starts, with launch / launch_ros stood in for
+    by recorders (they are not installable here)."""
+
+    class Recorded:
+        def __init__(self, *args, **kwargs):
+            self.args, self.kwargs = args, kwargs
+
+    class LaunchConfiguration(Recorded):
+        def perform(self, context):
+            return context[self.args[0]]
+
+    stubs = {
+        "launch": {"LaunchDescription": Recorded},
+        "launch.actions": {n: Recorded for n in ("DeclareLaunchArgument", "EmitEvent", "OpaqueFunction", "RegisterEventHandler", "TimerAction")},
+        "launch.event_handlers": {"OnProcessExit": Recorded},
+        "launch.events": {"Shutdown": Recorded},
+        "launch.substitutions": {"LaunchConfiguration": LaunchConfiguration},
+        "launch_ros": {},
+        "launch_ros.actions": {"Node": Recorded},
+        "ament_index_python": {},
+        "ament_index_python.packages": {"get_package_share_directory": lambda package: config_dir},
+    }
+    for name, attributes in stubs.items():
+        monkeypatch.setitem(sys.modules, name, types.SimpleNamespace(**attributes))
+    spec = importlib.util.spec_from_file_location("landing_vision_launch", LAUNCH)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    actions = module._nodes({"bag": bag, "config_dir": config_dir})
+    nodes = [a.kwargs for a in actions if "executable" in a.kwargs]
+    return {n["name"]: {k: v for p in n["parameters"] if isinstance(p, dict) for k, v in p.items()} for n in nodes}
+
+
+def test_launch_replay_runs_on_the_bags_clock_and_waits_for_the_links_the_graph_waits_for(monkeypatch, tmp_path):
+    """As ``uav-landing graph --bag``: every node but the player with use_sim_time (the player
+    publishing /clock), and the same ready topics (a bag without ground truth: not that link)."""
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    bag = tmp_path / "recorded"
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    with Writer(bag, version=9) as writer:
+        for topic, type_name in [("/camera/image_raw", "sensor_msgs/msg/Image"), ("/camera/camera_info", "sensor_msgs/msg/CameraInfo")]:
+            writer.write(writer.add_connection(topic, type_name, typestore=typestore), 1, b"\x00\x01\x00\x00")
+    config = Path(__file__).parents[2] / "config"
+    params = _launch_nodes(monkeypatch, str(bag), str(config))
+    assert set(params) == set(GRAPH_NODES)
+    assert params[PLAYER]["clock"] is True and "use_sim_time" not in params[PLAYER]
+    assert all(params[name]["use_sim_time"] is True for name in GRAPH_NODES if name != PLAYER)
+    args = types.SimpleNamespace(nodes=None, bag=bag, param=[], drain=2.0, stop_timeout=10.0, config=config)
+    graph_topics = yaml.safe_load(dict(_plan(args)[1][PLAYER])["ready_topics"])
+    assert params[PLAYER]["ready_topics"] == graph_topics == [t for t in PIPELINE_TOPICS if t != "/uav/ground_truth"]
+    live = _launch_nodes(monkeypatch, "", str(config))  # the live camera: wall time, no player
+    assert set(live) == set(GRAPH_NODES) - {PLAYER} and not any(live.values())
 
 
 def test_setup_installs_the_launch_file_parameter_files_models_and_shaders(tmp_path):

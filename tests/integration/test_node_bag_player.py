@@ -124,6 +124,35 @@ def test_paced_playback_publishes_a_frame_only_after_the_previous_one_is_acknowl
     assert (playback.node.counters["acknowledged"], playback.node.counters["ack_timeouts"]) == (FRAMES, 0)
 
 
+def test_paced_playback_holds_the_next_frames_camera_info_and_truth_until_the_ack(ros, playbacks, tmp_path):
+    """While frame 0 waits for its acknowledgement (held over one more /diagnostics report), the
+    camera_info and ground truth recorded with frame 1 stay back: a node that takes the latest
+    camera_info would otherwise rectify frame 0 with frame 1's calibration."""
+    frames = ros.collect(Image, "/camera/image_raw", IMAGE_QOS)
+    infos = ros.collect(CameraInfo, "/camera/camera_info", IMAGE_QOS)
+    truths = ros.collect(PoseStamped, "/uav/ground_truth", RELIABLE_QOS)
+    reports = ros.collect(DiagnosticArray, "/diagnostics", RELIABLE_QOS)
+    ack_pub = ros.probe.create_publisher(PoseStamped, "test/ack", RELIABLE_QOS)
+    playback = Playback(ros, _bag(tmp_path), mode="paced", ack_topic="test/ack", ack_type="geometry_msgs/msg/PoseStamped",
+                        ack_timeout_s=60.0, ready_topics=["/camera/camera_info", "/uav/ground_truth"])
+    playbacks.append(playback.start())
+    assert ros.spin_until(lambda: len(frames) == 1)
+    held = len(reports)
+    assert ros.spin_until(lambda: len(reports) > held)  # the player has spun a second or so meanwhile
+    assert (len(infos), len(truths)) == (1, 1)
+    acked = []
+
+    def step():
+        for frame in frames[len(acked):]:
+            ack_pub.publish(PoseStamped(header=frame.header))
+            acked.append(frame)
+        return playback.done()
+
+    assert ros.spin_until(step)
+    assert playback.result == 0 and len(acked) == FRAMES
+    assert ros.spin_until(lambda: len(infos) == FRAMES and len(truths) == FRAMES)
+
+
 def test_paced_playback_goes_on_after_an_ack_timeout(ros, playbacks, tmp_path):
     frames = ros.collect(Image, "/camera/image_raw", IMAGE_QOS)
     ack_pub = ros.probe.create_publisher(PoseStamped, "test/ack", RELIABLE_QOS)

@@ -29,9 +29,13 @@ def test_demo_replay_waits_for_every_link_of_the_graph(tmp_path):
     from uav_landing_vision.demo import graph_overrides
     from uav_landing_vision.graph import PIPELINE_TOPICS
 
-    player = dict(graph_overrides(tmp_path / "bag", tmp_path / "report", "bag")["bag_player"])
+    overrides = graph_overrides(tmp_path / "bag", tmp_path / "report", "bag")
+    player = dict(overrides["bag_player"])
     assert yaml.safe_load(player["ready_topics"]) == list(PIPELINE_TOPICS)
     assert {"/uav/pose_hypotheses", "/uav/tracker_status"} <= set(PIPELINE_TOPICS)
+    # Every other node on the bag's time, which the player publishes on /clock.
+    assert player["clock"] == "true" and "use_sim_time" not in player
+    assert all(dict(overrides[name]).get("use_sim_time") == "true" for name in overrides if name != "bag_player")
 
 
 def test_graph_replaying_a_bag_through_the_whole_graph_waits_for_every_link(tmp_path):
@@ -52,6 +56,44 @@ def test_graph_replaying_a_bag_through_the_whole_graph_waits_for_every_link(tmp_
     own = _plan(argparse.Namespace(nodes=None, bag=tmp_path, param=["bag_player:ready_topics=[/camera/image_raw]"],
                                    drain=2.0, stop_timeout=10.0, config=config_path("tracker.yaml").parent))[1]
     assert [v for k, v in own["bag_player"] if k == "ready_topics"] == ["[/camera/image_raw]"]  # the user's own only
+
+
+def _bag_of(path, topics):
+    """A bag that records ``topics`` (one message each; only their names matter here)."""
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    types = {"/camera/image_raw": "sensor_msgs/msg/Image", "/camera/camera_info": "sensor_msgs/msg/CameraInfo",
+             "/uav/ground_truth": "geometry_msgs/msg/PoseStamped"}
+    with Writer(path, version=9) as writer:
+        for topic in topics:
+            writer.write(writer.add_connection(topic, types[topic], typestore=typestore), 1, b"\x00\x01\x00\x00")
+    return path
+
+
+def test_graph_replay_of_a_recording_without_ground_truth_waits_only_for_links_that_can_come_up(tmp_path):
+    """A recorded landing has no /uav/ground_truth: nothing would ever publish it, and a paced
+    player waiting for its publisher gave up after ready_timeout_s (exit 1, the graph failed)."""
+    import argparse
+
+    import yaml
+
+    from uav_landing_vision.graph import GRAPH_NODES, PIPELINE_TOPICS, _plan
+    from uav_landing_vision.resources import config_path
+
+    def plan(bag):
+        args = argparse.Namespace(nodes=None, bag=bag, param=[], drain=2.0, stop_timeout=10.0,
+                                  config=config_path("tracker.yaml").parent)
+        return {name: dict(pairs) for name, pairs in _plan(args)[1].items()}
+
+    recorded = plan(_bag_of(tmp_path / "recorded", ["/camera/image_raw", "/camera/camera_info"]))
+    assert yaml.safe_load(recorded["bag_player"]["ready_topics"]) == [t for t in PIPELINE_TOPICS if t != "/uav/ground_truth"]
+    simulated = plan(_bag_of(tmp_path / "simulated", ["/camera/image_raw", "/camera/camera_info", "/uav/ground_truth"]))
+    assert yaml.safe_load(simulated["bag_player"]["ready_topics"]) == list(PIPELINE_TOPICS)
+    # A replay runs every node on the bag's time (the player's /clock), as ros2 bag play --clock.
+    assert simulated["bag_player"]["clock"] == "true" and "use_sim_time" not in simulated["bag_player"]
+    assert all(simulated[name]["use_sim_time"] == "true" for name in GRAPH_NODES if name != "bag_player")
 
 
 def test_an_interrupted_demo_fails_and_shows_no_earlier_report(tmp_path, monkeypatch, capsys):

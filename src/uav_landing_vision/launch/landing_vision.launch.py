@@ -4,8 +4,10 @@ One process per node, parameters from the installed ``share/uav_landing_vision/c
 (the same files ``uav-landing graph`` uses). Arguments:
 
 - ``bag:=/path/to/bag`` replays a recorded landing with ``bag_player`` once every link of the
-  graph is up, and shuts the graph down ``DRAIN_S`` after the bag ends (for the last frames'
-  poses); without it the graph runs on the live camera.
+  graph is up (those of the recorded inputs the bag has: ``replay_ready_topics``), every node on
+  the bag's time (``use_sim_time``, the player publishing ``/clock``), and shuts the graph down
+  ``DRAIN_S`` after the bag ends (for the last frames' poses); without it the graph runs on the
+  live camera.
 - ``config_dir:=/path`` reads the parameter files from another folder.
 """
 
@@ -19,9 +21,9 @@ from launch.events import Shutdown
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-# Every link of the graph: a replay waits for all of them, or its first frames are lost to the
-# nodes still loading their models.
-from uav_landing_vision.graph import PIPELINE_TOPICS
+# Every link of the graph that the bag can bring up: a replay waits for all of them, or its first
+# frames are lost to the nodes still loading their models.
+from uav_landing_vision.graph import replay_ready_topics
 
 PACKAGE = "uav_landing_vision"
 # The graph without the player, in start order (as uav_landing_vision.graph.GRAPH_NODES).
@@ -38,9 +40,10 @@ def _nodes(context):
         params = [os.path.join(config_dir, f"{name}.yaml"), *extra]
         return Node(package=PACKAGE, executable=name, name=name, parameters=params, output="screen", emulate_tty=True)
 
-    actions = [node(name) for name in NODES]
+    sim_time = [{"use_sim_time": True}] if bag else []  # a replay runs on the bag's /clock
+    actions = [node(name, sim_time) for name in NODES]
     if bag:
-        player = node(PLAYER, [{"bag": bag, "ready_topics": list(PIPELINE_TOPICS)}])
+        player = node(PLAYER, [{"bag": bag, "clock": True, "ready_topics": list(replay_ready_topics(bag))}])
         actions += [
             player,
             RegisterEventHandler(OnProcessExit(

@@ -67,16 +67,16 @@ def _run(args) -> int:
 
 def graph_overrides(bag: Path, report_dir: Path, sequence: str) -> dict:
     """Per-node parameter overrides of a graph that replays ``bag`` frame by frame (paced on
-    the tracker's status, nothing dropped, once every link of the graph is up) and writes the
-    evaluator's report to ``report_dir``."""
+    the tracker's status, nothing dropped, once every link of the graph is up, every node on the
+    bag's time) and writes the evaluator's report to ``report_dir``."""
     from .graph import GRAPH_NODES, ready_topics_parameter
     from .tracking.upf import load_tracker_config
 
     tracker = load_tracker_config()
-    overrides = {name: [] for name in GRAPH_NODES}
-    overrides["bag_player"] += [("bag", str(bag)), ("mode", "paced"), ("ack_topic", "uav/tracker_status"),
-                                ("ack_type", "uav_landing_msgs/msg/TrackerStatus"),
-                                ("ready_topics", ready_topics_parameter())]
+    overrides = {name: [("use_sim_time", "true")] for name in GRAPH_NODES if name != "bag_player"}  # the bag's /clock
+    overrides["bag_player"] = [("bag", str(bag)), ("mode", "paced"), ("ack_topic", "uav/tracker_status"),
+                               ("ack_type", "uav_landing_msgs/msg/TrackerStatus"), ("clock", "true"),
+                               ("ready_topics", ready_topics_parameter())]
     overrides["evaluator"] += [("out_dir", str(report_dir)), ("sequence", sequence),
                                ("variant", f"{tracker.variant}N{tracker.iterations}")]
     return overrides

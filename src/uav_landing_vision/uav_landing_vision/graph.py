@@ -6,6 +6,8 @@ Each node of :data:`GRAPH_NODES` runs as
 with a ``[node]`` prefix. The graph stops, every node with SIGINT (then SIGTERM, then SIGKILL
 after ``--stop-timeout``), on Ctrl-C or SIGTERM, ``--drain`` seconds after ``bag_player`` has
 played the bag (for the last frame's messages downstream), or when a node exits on its own; the exit code is 0 only if every node ended cleanly.
+With ``--bag`` every node runs on the bag's time (``use_sim_time``, from the player's ``/clock``),
+as with ``ros2 bag play --clock``: the GCS bridge would otherwise find every replayed pose stale.
 This module imports no ROS module: the nodes do, in their own processes.
 """
 
@@ -44,6 +46,9 @@ PIPELINE_TOPICS = (
     "/uav/tracker_status",
     "/uav/ground_truth",
 )
+# The inputs only a bag provides. A replay waits for those its bag has: nothing else ever publishes
+# the others (a recorded landing has no ground truth), and a paced player would give up on them.
+RECORDED_TOPICS = ("/camera/image_raw", "/camera/camera_info", "/uav/ground_truth")
 _CLEAN_EXIT = (0, -signal.SIGINT, 128 + signal.SIGINT)
 _POLL_S = 0.1
 
@@ -51,6 +56,19 @@ _POLL_S = 0.1
 def ready_topics_parameter(topics=PIPELINE_TOPICS) -> str:
     """``topics`` as the value of a ``-p ready_topics:=...`` override (a YAML list)."""
     return "[" + ", ".join(f'"{t}"' for t in topics) + "]"
+
+
+def replay_ready_topics(bag) -> tuple[str, ...]:
+    """:data:`PIPELINE_TOPICS` less the :data:`RECORDED_TOPICS` that ``bag`` lacks (all of them
+    when it cannot be read: bag_player reports that at start-up)."""
+    from rosbags.rosbag2 import Reader, ReaderError
+
+    try:
+        with Reader(bag) as reader:
+            recorded = {conn.topic for conn in reader.connections}
+    except (ReaderError, OSError):
+        return PIPELINE_TOPICS
+    return tuple(t for t in PIPELINE_TOPICS if t not in RECORDED_TOPICS or t in recorded)
 
 
 def register(sub) -> None:
@@ -120,11 +138,14 @@ def _plan(args) -> tuple[list[str], dict]:
         raise ValueError("--drain must be >= 0 and --stop-timeout > 0")
     overrides = {n: [] for n in names}
     if args.bag is not None:
-        overrides[PLAYER].append(("bag", str(args.bag.resolve())))
+        overrides[PLAYER] += [("bag", str(args.bag.resolve())), ("clock", "true")]
+        for name in names:  # the bag's time, as ros2 bag play --clock: a replayed pose is not stale
+            if name != PLAYER:
+                overrides[name].append(("use_sim_time", "true"))
         if set(names) == set(GRAPH_NODES) and not any(i.startswith(f"{PLAYER}:ready_topics=") for i in args.param):
             # The whole graph: play once every link is up, or the first frames (and their ground
             # truth, which the evaluator then never counts) are lost to the nodes still starting.
-            overrides[PLAYER].append(("ready_topics", ready_topics_parameter()))
+            overrides[PLAYER].append(("ready_topics", ready_topics_parameter(replay_ready_topics(args.bag))))
     for item in args.param:
         node, sep, assignment = item.partition(":")
         key, eq, value = assignment.partition("=")

@@ -12,10 +12,12 @@ Modes (parameter ``mode``):
 - ``timed``: at the recorded rate times ``rate`` (``rate: 1000.0`` ≈ as fast as possible).
 - ``paced``: each ``pace_topic`` message (the camera image) is published only once the
   previous one is acknowledged: a message on ``ack_topic`` (type ``ack_type``, any message
-  with a header) carries its ``header.stamp``. The downstream then never has more than one
-  frame in flight and drops none. After ``ack_timeout_s`` without it the frame counts as an
-  ack timeout (logged, on ``/diagnostics``) and playback goes on. The default acknowledgement
-  is ``camera/image_rect`` (undistort); ``ack_topic: uav/tracker_status`` with
+  with a header) carries its ``header.stamp``. The messages recorded after a frame (the next
+  frame's camera_info and ground truth) wait for its acknowledgement too: a node that takes the
+  latest camera_info never rectifies a frame with the next frame's calibration. The downstream
+  then never has more than one frame in flight and drops none. After ``ack_timeout_s`` without
+  it the frame counts as an ack timeout (logged, on ``/diagnostics``) and playback goes on.
+  The default acknowledgement is ``camera/image_rect`` (undistort); ``ack_topic: uav/tracker_status`` with
   ``ack_type: uav_landing_msgs/msg/TrackerStatus`` paces on the whole pipeline (the tracker
   publishes one status per tracked frame, with its stamp, estimate or not).
 
@@ -123,6 +125,7 @@ class BagPlayer(LandingNode):
             return 1
         paced = self.config.mode == "paced"
         first_ns = start = None
+        pending_t_ns = None  # bag time of the pending frame: later messages wait for its acknowledgement
         frames = 0
         total = sum(c.msgcount for c in self._reader.connections if c.topic == self.config.pace_topic)
         try:
@@ -137,7 +140,7 @@ class BagPlayer(LandingNode):
                     self.drop(f"{conn.topic}: message at {t_ns} ns does not deserialise as {conn.msgtype}: {exc}")
                     continue
                 is_frame = paced and conn.topic == self.config.pace_topic
-                if is_frame:
+                if is_frame or (self._pending is not None and t_ns > pending_t_ns):
                     self._wait_for_ack(executor)
                 elif not paced:
                     if first_ns is None:
@@ -148,7 +151,7 @@ class BagPlayer(LandingNode):
                 publisher.publish(raw)
                 self.counters["published"] += 1
                 if is_frame:
-                    self._pending = stamp_ns(msg.header.stamp)
+                    self._pending, pending_t_ns = stamp_ns(msg.header.stamp), t_ns
                 if conn.topic == self.config.pace_topic:
                     frames += 1
                     every = self.config.progress_every
