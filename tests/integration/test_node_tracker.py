@@ -187,6 +187,20 @@ def test_a_refinement_batch_beyond_512_poses_is_rendered(ros):
     assert rig.node._renderer.max_batch >= 601
 
 
+def test_frames_a_newer_frame_supersedes_are_skipped_not_tracked(ros, generator):
+    """A camera faster than the tracker: frames 1 and 2 still wait for hypotheses when frame 3
+    comes complete; tracking them by prediction would only make frame 3 (and every later one)
+    older, so they are skipped and counted."""
+    rig = Rig(ros, Parameter("node.hypotheses_timeout_s", value=10.0))
+    rig.send_info()
+    assert rig.send(0, frame_msg(0), boosted_msg(generator, 0)) is not None
+    for k in (1, 2):
+        rig.image_pub.publish(frame_msg(k))
+    assert rig.send(3, frame_msg(3), boosted_msg(generator, 3)) is not None
+    assert rig.node.counters["skipped"] == 2 and rig.node.counters["without_hypotheses"] == 0
+    assert rig.status_of(1) is None and rig.status_of(2) is None
+
+
 def test_a_replay_started_again_restarts_the_track(ros, generator):
     rig = Rig(ros)
     rig.send_info()

@@ -12,8 +12,10 @@ calibration is used) and ``uav/pose_hypotheses``. Publishes, with the image's he
 
 Matching: an image and its hypotheses are paired by exact ``header.stamp`` (either order,
 cache of ``node.cache_size`` stamps). An image waits at most ``node.hypotheses_timeout_s``
-for its hypotheses, then is tracked by prediction; frames are tracked in stamp order, so a
-frame whose successor is complete is tracked at once by prediction. Frames due before the first
+for its hypotheses, then is tracked by prediction, unless a newer image has come: frames are
+tracked in stamp order, and one superseded by a newer frame (a complete successor, or a newer
+image waiting) is skipped and counted (``skipped``), so a camera faster than the tracker builds
+no backlog of ever older frames (the motion model then predicts over the gap). Frames due before the first
 calibration are held (``node.cache_size`` of them) and tracked once it comes. An image stamped more than
 2 s before the last tracked frame starts a new time-line (a replay or clock started again): the
 track restarts, where every later frame would otherwise be dropped as out of order. Hypotheses without
@@ -168,15 +170,22 @@ class TrackerNode(LandingNode):
             self._expire(old)
         if entry is not None:
             for old in self._cache.pop_older(stamp):
-                self._expire(old)
+                self._expire(old, superseded=True)
             self._track(*entry.items["image"], entry.items["hypotheses"])
 
     def _on_deadline(self) -> None:
-        for old in self._cache.pop_expired(self.node_config.hypotheses_timeout_s):
-            self._expire(old)
+        expired = self._cache.pop_expired(self.node_config.hypotheses_timeout_s)
+        newest = max((e.stamp_ns for e in expired if "image" in e.items), default=None)
+        for old in expired:
+            self._expire(old, superseded=old.stamp_ns != newest)
 
-    def _expire(self, entry) -> None:
-        """An entry that will not be completed: its image is tracked by prediction."""
+    def _expire(self, entry, superseded: bool = False) -> None:
+        """An entry that will not be completed: its image is tracked by prediction, unless a newer
+        frame has come (a camera faster than the tracker): tracking a stale frame would only delay
+        that one, and every later one, further. A skipped frame is counted, not tracked."""
+        if "image" in entry.items and (superseded or self._cache.has_newer("image", entry.stamp_ns)):
+            self.counters["skipped"] += 1
+            return
         if "image" in entry.items:
             self.counters["without_hypotheses"] += 1
             self.get_logger().warning(
