@@ -69,14 +69,13 @@ def graph_overrides(bag: Path, report_dir: Path, sequence: str) -> dict:
     """Per-node parameter overrides of a graph that replays ``bag`` frame by frame (paced on
     the tracker's status, nothing dropped, once every link of the graph is up, every node on the
     bag's time) and writes the evaluator's report to ``report_dir``."""
-    from .graph import GRAPH_NODES, ready_topics_parameter
+    from .graph import GRAPH_NODES, replay_overrides
     from .tracking.upf import load_tracker_config
 
     tracker = load_tracker_config()
-    overrides = {name: [("use_sim_time", "true")] for name in GRAPH_NODES if name != "bag_player"}  # the bag's /clock
-    overrides["bag_player"] = [("bag", str(bag)), ("mode", "paced"), ("ack_topic", "uav/tracker_status"),
-                               ("ack_type", "uav_landing_msgs/msg/TrackerStatus"), ("clock", "true"),
-                               ("ready_topics", ready_topics_parameter())]
+    overrides = replay_overrides(GRAPH_NODES, bag, wait_for_links=True)
+    overrides["bag_player"] += [("mode", "paced"), ("ack_topic", "uav/tracker_status"),
+                                ("ack_type", "uav_landing_msgs/msg/TrackerStatus")]
     overrides["evaluator"] += [("out_dir", str(report_dir)), ("sequence", sequence),
                                ("variant", f"{tracker.variant}N{tracker.iterations}")]
     return overrides

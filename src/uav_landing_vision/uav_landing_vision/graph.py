@@ -71,6 +71,19 @@ def replay_ready_topics(bag) -> tuple[str, ...]:
     return tuple(t for t in PIPELINE_TOPICS if t not in RECORDED_TOPICS or t in recorded)
 
 
+def replay_overrides(names, bag, wait_for_links: bool) -> dict:
+    """Parameter overrides of the graph ``names`` replaying ``bag``: the player plays it and
+    publishes ``/clock``, every other node runs on that clock (as with ``ros2 bag play --clock``: a
+    replayed pose is then not stale); with ``wait_for_links`` the player first waits for every link
+    the bag can bring up (:func:`replay_ready_topics`), or the first frames (and their ground
+    truth, which the evaluator then never counts) are lost to the nodes still starting."""
+    overrides = {n: [] if n == PLAYER else [("use_sim_time", "true")] for n in names}
+    overrides[PLAYER] += [("bag", str(Path(bag).resolve())), ("clock", "true")]
+    if wait_for_links:
+        overrides[PLAYER].append(("ready_topics", ready_topics_parameter(replay_ready_topics(bag))))
+    return overrides
+
+
 def register(sub) -> None:
     p = sub.add_parser("graph", help="run the node graph, one process per node (what ros2 launch would do)")
     p.add_argument("--bag", type=Path, help="rosbag2 bag to replay with bag_player; without it, no bag_player (live camera)")
@@ -136,16 +149,11 @@ def _plan(args) -> tuple[list[str], dict]:
         raise ValueError("no node to run")
     if args.drain < 0 or args.stop_timeout <= 0:
         raise ValueError("--drain must be >= 0 and --stop-timeout > 0")
-    overrides = {n: [] for n in names}
-    if args.bag is not None:
-        overrides[PLAYER] += [("bag", str(args.bag.resolve())), ("clock", "true")]
-        for name in names:  # the bag's time, as ros2 bag play --clock: a replayed pose is not stale
-            if name != PLAYER:
-                overrides[name].append(("use_sim_time", "true"))
-        if set(names) == set(GRAPH_NODES) and not any(i.startswith(f"{PLAYER}:ready_topics=") for i in args.param):
-            # The whole graph: play once every link is up, or the first frames (and their ground
-            # truth, which the evaluator then never counts) are lost to the nodes still starting.
-            overrides[PLAYER].append(("ready_topics", ready_topics_parameter(replay_ready_topics(args.bag))))
+    if args.bag is None:
+        overrides = {n: [] for n in names}
+    else:  # the whole graph waits for its links unless told which
+        whole = set(names) == set(GRAPH_NODES) and not any(i.startswith(f"{PLAYER}:ready_topics=") for i in args.param)
+        overrides = replay_overrides(names, args.bag, wait_for_links=whole)
     for item in args.param:
         node, sep, assignment = item.partition(":")
         key, eq, value = assignment.partition("=")

@@ -288,10 +288,16 @@ def coasting_covariance(pos: np.ndarray, frames: int, range_fraction: float, sig
     return np.diag(np.repeat([s_pos**2, (frames * sigma_rad) ** 2], 3))
 
 
+def largest_draw(config: TrackerConfig) -> int:
+    """The most poses a tracker of ``config`` renders in one draw call: its M particles, or the
+    rotation refinement's candidates + 1."""
+    return max(config.particles, config.refine.candidates + 1)
+
+
 def render_batch(config: TrackerConfig) -> int:
-    """The ``max_batch`` of a renderer for a tracker of ``config``: its largest draw call (M
-    particles, or the rotation refinement's candidates + 1), and at least 512."""
-    return max(512, config.particles, config.refine.candidates + 1)
+    """The ``max_batch`` of a renderer for a tracker of ``config``: its :func:`largest_draw`, and at
+    least 512."""
+    return max(512, largest_draw(config))
 
 
 class Tracker:
@@ -302,7 +308,7 @@ class Tracker:
     """
 
     def __init__(self, config: TrackerConfig, camera, renderer=None):
-        batch = max(config.particles, config.refine.candidates + 1)  # one draw call each
+        batch = largest_draw(config)
         if renderer is None:
             from ..model import fixed_wing_mesh
             from ..render import Renderer
@@ -425,7 +431,7 @@ class Tracker:
 
     # --- Algorithm 3 steps ----------------------------------------------------------------------
 
-    def _mix(self, new: ParticleSet | None, steps: int = 1) -> ParticleSet | None:
+    def _mix(self, new: ParticleSet | None, steps: int) -> ParticleSet | None:
         """Step 1: the best M0 carried particles (predicted ``steps`` Δt ahead, :func:`prediction_steps`)
         and the new boosted ones (Alg. 3)."""
         cfg = self.config
