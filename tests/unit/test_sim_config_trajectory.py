@@ -7,6 +7,7 @@ import pytest
 
 from uav_landing_vision.geometry import matrix_to_euler_zyx, quat_to_matrix
 from uav_landing_vision.sim import ScenarioError, generators, load_scenario, make_trajectory
+from uav_landing_vision.sim.config import ApproachConfig, ImagingConfig, ShipConfig, validate
 from uav_landing_vision.sim.trajectory import SmoothSignal, camera_mount
 
 SHIPPED = ("normal", "complex", "video", "single_frame")
@@ -32,12 +33,45 @@ def test_shipped_scenarios_load(name):
     ("approach: {}\nbackground: {sun_azimuth_deg: .inf}\n", "background.sun_azimuth_deg: expected a finite number"),
     ("approach: {}\nbackground: {sun_elevation_deg: .nan}\n", "background.sun_elevation_deg: expected a finite number"),
     ("approach: {speed_jitter_mps: 1.75}\n", "speed_jitter_mps must be under a quarter of the closing speed"),
+    ("approach: {cone_start_m: 0}\n", "approach.cone_start_m must be positive"),
+    ("approach: {cone_start_m: -10}\n", "approach.cone_start_m must be positive"),
+    ("approach: {disturbance_range_m: 0}\n", "approach.disturbance_range_m must be positive"),
+    ("approach: {roll_far_deg: -15}\n", "approach.roll_far_deg must be non-negative"),
+    ("approach: {yaw_near_deg: -1}\n", "approach.yaw_near_deg must be non-negative"),
+    ("approach: {}\nship: {heave_m: -0.3}\n", "ship.heave_m must be non-negative"),
+    ("approach: {}\nship: {pitch_deg: -1}\n", "ship.pitch_deg must be non-negative"),
+    ("approach: {}\nbackground: {sea_jitter_m: -0.1}\n", "background.sea_jitter_m must be non-negative"),
+    ("approach: {start_range_m: [20, 30]}\nship: {camera_position_m: [50, 0, 0.5]}\n",
+     r"approach.start_range_m must start beyond the net \(50.0 m from the camera\)"),
+    ("approach: {}\nship: {camera_position_m: [5, 0, -3]}\n", "the camera must be above the waterline"),
+    ("dt_s: 1.0e-7\napproach: {}\n", "dt_s must be at least 1e-06 s"),
 ])
 def test_bad_scenarios_are_clear_errors(tmp_path, text, match):
     path = tmp_path / "bad.yaml"
     path.write_text(text)
     with pytest.raises(ScenarioError, match=match):
         load_scenario(path)
+
+
+@pytest.mark.parametrize("changes, match", [
+    (dict(dt_s=100.0), "dt_s = 100.0 s leaves fewer than 2 frames"),
+    (dict(ship=dict(speed_mps=14.999), approach=dict(speed_jitter_mps=0.0)), "may take up to 2[0-9]{6} frames"),
+])
+def test_approaches_too_short_or_too_long_are_clear_errors(changes, match):
+    s = load_scenario("normal")
+    s = validate(replace(s, **{k: replace(getattr(s, k), **v) if isinstance(v, dict) else v
+                               for k, v in changes.items()}))
+    with pytest.raises(ScenarioError, match=match):
+        make_trajectory(s, generators(0))
+
+
+def test_an_empty_section_takes_the_defaults(tmp_path):
+    """``approach:`` with every key commented out is an empty section (YAML null), as normal.yaml says."""
+    path = tmp_path / "empty_sections.yaml"
+    path.write_text("approach:\n  # start_range_m: [80.0, 100.0]\nship:\nimaging:\n")
+    s = load_scenario(path)
+    assert s.approach == ApproachConfig() and s.ship == ShipConfig() and s.imaging == ImagingConfig()
+    assert s.single_frame is None
 
 
 def test_a_scenario_that_is_not_text_is_a_clear_error(tmp_path):

@@ -12,6 +12,7 @@ from uav_landing_vision.model import fixed_wing_mesh
 from uav_landing_vision.render import Renderer
 from uav_landing_vision.sim import (
     BackgroundError,
+    ScenarioError,
     VideoBackground,
     generators,
     iter_frames,
@@ -230,3 +231,26 @@ def test_an_existing_png_folder_leaves_no_bag(tmp_path):
         simulate(load_scenario("normal"), tmp_path / "bag", frames=1, png_dir=tmp_path / "png", progress=False,
                  mesh=MESH)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["png"]
+
+
+def test_stamps_past_the_ros_time_range_are_refused_before_writing(tmp_path):
+    s = dataclasses.replace(load_scenario("normal"), start_time_s=2**31 - 0.05)  # valid, but frame 2 is past 2^31 s
+    with pytest.raises(ScenarioError, match=r"frame 2 would be stamped 2147483648.018 s, past the ROS time range"):
+        simulate(s, tmp_path / "bag", frames=5, progress=False, mesh=MESH)
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("options, message", [
+    (["--out", "bag", "--video", "clip.mp4"], "--video is for the 'video' background; scenario 'normal' has 'normal'"),
+    (["--out", "bag", "--png-dir", "bag"], "--png-dir bag and --out bag must not contain each other"),
+    (["--out", "bag", "--png-dir", "bag/png"], "--png-dir bag/png and --out bag must not contain each other"),
+    (["--out", "png/bag", "--png-dir", "png"], "--png-dir png and --out png/bag must not contain each other"),
+])
+def test_simulate_refuses_options_it_cannot_honour(tmp_path, monkeypatch, options, message):
+    from uav_landing_vision.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "clip.mp4").write_bytes(b"")
+    with pytest.raises(SystemExit, match=f"^uav-landing simulate: {message}"):
+        main(["simulate", "--frames", "1", *options])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["clip.mp4"]

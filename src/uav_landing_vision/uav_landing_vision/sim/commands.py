@@ -20,6 +20,12 @@ def _refusal(message) -> SystemExit:
     return SystemExit(f"uav-landing simulate: {message}")
 
 
+def _nested(a: Path, b: Path) -> bool:
+    """Whether folders ``a`` and ``b`` are the same or one is inside the other."""
+    a, b = a.resolve(), b.resolve()
+    return a == b or a in b.parents or b in a.parents
+
+
 def _run(args) -> int:
     from ..camera import CameraInfoError
     from .backgrounds import BackgroundError
@@ -33,8 +39,13 @@ def _run(args) -> int:
     for option, path in (("--out", args.out), ("--png-dir", args.png_dir)):
         if path is not None and path.exists():
             raise _refusal(f"{option} {path} exists already; give a new directory")
+    if args.png_dir is not None and _nested(args.out, args.png_dir):
+        raise _refusal(f"--png-dir {args.png_dir} and --out {args.out} must not contain each other")
     try:
         scenario = load_scenario(args.scenario)
+        if args.video and scenario.background.kind != "video":
+            raise _refusal(f"--video is for the 'video' background; scenario '{scenario.name}' has "
+                           f"'{scenario.background.kind}'")
         result = simulate(scenario, args.out, seed=args.seed, frames=args.frames, video=args.video,
                           png_dir=args.png_dir, compress=args.compress)
     except (ScenarioError, BackgroundError, CameraInfoError, OSError) as exc:

@@ -109,6 +109,7 @@ class Scenario:
 
 
 BACKGROUND_KINDS = ("normal", "complex", "video")
+SECTIONS = ("approach", "single_frame", "ship", "background", "imaging")
 
 
 def load_scenario(name_or_path) -> Scenario:
@@ -126,6 +127,9 @@ def load_scenario(name_or_path) -> Scenario:
     if not isinstance(doc, dict):
         raise ScenarioError(f"{path}: a scenario must be a YAML mapping")
     doc.setdefault("name", path.stem)
+    for key in SECTIONS:  # "approach:" with nothing (or only comments) under it: an empty section
+        if key in doc and doc[key] is None:
+            doc[key] = {}
     try:
         scenario = from_mapping(Scenario, doc, str(path))
     except ConfigError as exc:
@@ -140,17 +144,28 @@ def validate(s: Scenario, where: str = "scenario") -> Scenario:
             raise ScenarioError(f"{where}: {msg}")
 
     need((s.approach is None) != (s.single_frame is None), "give exactly one of 'approach' or 'single_frame'")
-    need(s.dt_s > 0, "dt_s must be positive")
+    need(s.dt_s >= 1e-6, f"dt_s must be at least 1e-06 s (stamps are in ns), got {s.dt_s}")
     need(s.seed >= 0, f"seed must be non-negative, got {s.seed}")
     need(0 <= s.start_time_s < 2**31, f"start_time_s must be in [0, 2^31) s (a ROS time stamp), got {s.start_time_s}")
     need(math.isfinite(s.background.sun_azimuth_deg) and math.isfinite(s.background.sun_elevation_deg),
          "background.sun_azimuth_deg and sun_elevation_deg must be finite")
     need(s.background.kind in BACKGROUND_KINDS, f"background.kind must be one of {BACKGROUND_KINDS}")
+    need(s.background.sea_jitter_m >= 0, "background.sea_jitter_m must be non-negative")
+    _need_non_negative(need, "ship", s.ship, ("roll_deg", "pitch_deg", "yaw_deg", "heave_m"))
+    need(s.ship.net_height_m + s.ship.camera_position_m[2] > 0,
+         "the camera must be above the waterline (ship.net_height_m + camera_position_m[2] > 0)")
     a = s.approach
     if a is not None:
         need(0 < a.alpha2_deg < a.alpha1_deg < 45, "approach needs 0 < alpha2_deg < alpha1_deg < 45")
         need(0 < a.beta2_deg < 90, "approach.beta2_deg must be in (0, 90)")
         need(10 < a.start_range_m[0] <= a.start_range_m[1], "approach.start_range_m must be [low, high] above 10 m")
+        net = math.hypot(*s.ship.camera_position_m)
+        need(a.start_range_m[0] > net,
+             f"approach.start_range_m must start beyond the net ({net:.1f} m from the camera)")
+        need(a.cone_start_m > 0, "approach.cone_start_m must be positive")
+        need(a.disturbance_range_m > 0, "approach.disturbance_range_m must be positive")
+        _need_non_negative(need, "approach", a, ("roll_far_deg", "roll_near_deg", "pitch_far_deg", "pitch_near_deg",
+                                                 "yaw_far_deg", "yaw_near_deg"))
         need(a.airspeed_mps > s.ship.speed_mps, "approach.airspeed_mps must exceed ship.speed_mps (the UAV must close in)")
         need(0 < a.disturbance_band_hz[0] < a.disturbance_band_hz[1], "approach.disturbance_band_hz must be [low, high] > 0")
         need(a.path_wander_deg >= 0 and a.speed_jitter_mps >= 0, "approach wander/jitter must be non-negative")
@@ -169,3 +184,9 @@ def validate(s: Scenario, where: str = "scenario") -> Scenario:
     need(im.samples >= 1 and im.noise_sigma >= 0 and im.exposure_fraction >= 0 and im.max_blur_px >= 0,
          "imaging: samples ≥ 1 and non-negative noise/blur")
     return s
+
+
+def _need_non_negative(need, section: str, cfg, names) -> None:
+    """Check that the RMS values ``names`` of ``cfg`` are not negative."""
+    for name in names:
+        need(getattr(cfg, name) >= 0, f"{section}.{name} must be non-negative, got {getattr(cfg, name)}")

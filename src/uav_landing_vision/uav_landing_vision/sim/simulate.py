@@ -93,10 +93,14 @@ def simulate(scenario: Scenario, bag_dir, *, seed: int | None = None, frames: in
             raise ScenarioError(f"scenario '{scenario.name}' with this seed has {len(traj)} frames; "
                                 f"--frames {frames} is too many (raise start_range_m or lower the speed)")
         traj = traj.head(frames)
+    stamps = stamps_ns(scenario, traj.times_s)
+    late = np.flatnonzero(stamps >= 2**31 * 10**9)  # builtin_interfaces/Time.sec is an int32
+    if late.size:
+        raise ScenarioError(f"frame {late[0]} would be stamped {stamps[late[0]] / 1e9:.3f} s, past the ROS time "
+                            "range (2^31 s): lower start_time_s")
     camera = scenario_camera(scenario)
     synth = FrameSynthesizer(camera, scenario.imaging, mesh)
     background = make_background(scenario.background, synth.render_camera, scenario.ship, rngs["background"], video)
-    stamps = stamps_ns(scenario, traj.times_s)
     sun = sun_direction(scenario)
     centres = synth.render_camera.project_pinhole(traj.trans)
     shifts = np.zeros_like(centres)

@@ -22,9 +22,10 @@ from ..geometry import (
     quat_multiply,
     quat_normalise,
 )
-from .config import ApproachConfig, ShipConfig, SingleFrameConfig
+from .config import ApproachConfig, ScenarioError, ShipConfig, SingleFrameConfig
 
 GRAVITY = 9.81
+MAX_FRAMES = 1_000_000  # longest approach (a few days of simulation)
 # Columns: the optical axes (x right, y down, z forward) in the camera body frame (x forward, y left, z up).
 BODY_FROM_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 # The UAV facing the camera, upright: body x → −z_C, body y (left wing) → +x_C, body z → −y_C.
@@ -150,10 +151,15 @@ def landing_approach(rngs: tuple[np.random.Generator, np.random.Generator], cfg:
     r0 = uc + np.sqrt(uc * uc - cam @ cam + distance0**2)
     closing = cfg.airspeed_mps - ship.speed_mps
     n = int(np.ceil(r0 / ((closing - jitter.peak) * dt))) + 1  # enough steps at the slowest; trimmed below
+    if n > MAX_FRAMES:
+        raise ScenarioError(f"this approach may take up to {n} frames (at most {MAX_FRAMES}): "
+                            "raise dt_s or the closing speed (approach.airspeed_mps - ship.speed_mps)")
     t = np.arange(n) * dt
     r = r0 - np.concatenate([[0.0], np.cumsum((closing + jitter(t[:-1])) * dt)])
     keep = r >= 0.0
     t, r = t[keep], r[keep]
+    if len(t) < 2:
+        raise ScenarioError(f"dt_s = {dt} s leaves fewer than 2 frames of this approach: lower it")
 
     widen = 1.0 + 0.5 * np.clip((r - cfg.cone_start_m) / cfg.cone_start_m, 0.0, None)
     alpha = _bounded(a_c, 0.95 * a_h * widen, alpha0 + d_alpha(t))
