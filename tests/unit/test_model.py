@@ -161,3 +161,26 @@ def test_open_mesh_loads_with_warning(tmp_path):
     with pytest.warns(UserWarning, match="not closed"):
         mesh = load_mesh(path)
     assert not mesh.is_closed and mesh.triangle_count == ref.triangle_count - 1
+
+
+_PLY_HEAD = ("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+             "element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n")
+
+
+@pytest.mark.parametrize(
+    "name, text, message",
+    [
+        # A PLY face naming a vertex it does not have: an IndexError from trimesh before.
+        ("beyond.ply", _PLY_HEAD + "3 0 1 9\n", "face index out of range"),
+        # A negative PLY index (not a relative reference, as in OBJ) was read as the last vertex.
+        ("negative.ply", _PLY_HEAD + "3 0 1 -1\n", "face index out of range"),
+        # Coordinates whose squared extent overflows: an OverflowError before.
+        ("huge.obj", "v 0 0 0\nv 1e300 0 0\nv 0 1e300 0\nf 1 2 3\n", "implausible for a UAV"),
+    ],
+)
+@pytest.mark.filterwarnings("ignore:invalid value encountered in cast:RuntimeWarning")  # trimesh, huge.obj
+def test_corrupt_mesh_files_are_mesh_errors(tmp_path, name, text, message):
+    path = tmp_path / name
+    path.write_text(text)
+    with pytest.raises(MeshError, match=message):
+        load_mesh(path)

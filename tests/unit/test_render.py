@@ -213,6 +213,24 @@ def test_image_beyond_the_context_limits_is_refused(camera, mesh, monkeypatch, l
         Renderer(camera, mesh, tile=32, max_batch=16)
 
 
+@pytest.mark.parametrize("limit, value", [("GL_MAX_TEXTURE_SIZE", 1024), ("GL_MAX_RENDERBUFFER_SIZE", 1536)])
+def test_a_refused_renderer_leaves_no_gl_objects(camera, mesh, monkeypatch, limit, value):
+    """The tracker node builds a renderer at every camera_info until one works: each refused
+    one left its programs, buffers and a 2048x1024 atlas behind (moderngl frees none itself)."""
+    ctx = gl_context()
+    monkeypatch.setitem(ctx.info, limit, value)
+    made = []
+    for name in ("program", "buffer", "vertex_array", "renderbuffer", "framebuffer", "texture", "depth_renderbuffer"):
+        def record(*args, _make=getattr(ctx, name), **kwargs):
+            made.append(_make(*args, **kwargs))
+            return made[-1]
+
+        monkeypatch.setattr(ctx, name, record)
+    with pytest.raises(ValueError, match=f"exceeds .*{limit}"):
+        Renderer(camera, mesh, tile=64, max_batch=512)
+    assert [type(obj).__name__ for obj in made if type(obj.mglo).__name__ != "InvalidObject"] == []
+
+
 def test_side_view_is_upright_and_not_mirrored(camera, renderer):
     full = renderer.silhouette_full(side_view_quat(), [0.0, 0.0, 6.0])
     rows, cols = np.nonzero(full)
@@ -274,3 +292,17 @@ def test_reduced_mesh_has_the_same_silhouette(camera, renderer, poses):
 def test_one_context_per_process(renderer):
     assert renderer.ctx is gl_context()
     assert isinstance(renderer.gl_renderer, str) and renderer.gl_renderer
+
+
+def test_returned_masks_are_not_overwritten_by_the_next_batch(camera, mesh, poses):
+    """With max_batch=1 the atlas is one tile wide, so the masks were a view of the renderer's
+    readback buffer: the next call rewrote the previous batch's masks."""
+    quats, trans = poses
+    for max_batch in (1, 2):
+        r = Renderer(camera, mesh, tile=TILE, max_batch=max_batch)
+        first = r.silhouettes(quats[:1], trans[:1])
+        kept = first.masks.copy()
+        assert kept.any()
+        r.silhouettes(quats[:1], np.array([[0.0, 0.0, -10.0]]))  # behind the camera: an empty tile
+        np.testing.assert_array_equal(first.masks, kept)
+        r.release()

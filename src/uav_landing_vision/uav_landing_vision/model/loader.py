@@ -34,6 +34,8 @@ def load_mesh(path, unit: str = "m") -> Mesh:
         raise MeshError(f"cannot read mesh file {path}: {exc}") from exc
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0 or len(loaded.vertices) == 0:
         raise MeshError(f"mesh file {path} holds no triangles")
+    if loaded.faces.min() < 0 or loaded.faces.max() >= len(loaded.vertices):  # PLY: no relative indices
+        raise MeshError(f"mesh file {path} has a face index out of range of its {len(loaded.vertices)} vertices")
     vertices = np.asarray(loaded.vertices, dtype=float)
     if not np.all(np.isfinite(vertices)):
         raise MeshError(f"mesh file {path} has non-finite vertex coordinates")
@@ -42,11 +44,11 @@ def load_mesh(path, unit: str = "m") -> Mesh:
     loaded.update_faces((f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 2] != f[:, 0]))  # collapsed: no area
     vertices = np.asarray(loaded.vertices, dtype=float)
     size = float(np.ptp(vertices, axis=0).max())  # in the file's unit, as the area
+    extent = size * UNITS[unit]
+    if size > 0 and not MIN_EXTENT_M <= extent <= MAX_EXTENT_M:  # first: size² may overflow
+        raise MeshError(_size_message(path, unit, extent))
     if loaded.area <= 1e-12 * size**2:  # zero up to rounding
         raise MeshError(f"mesh file {path} has no surface: every triangle is degenerate (zero area)")
-    extent = size * UNITS[unit]
-    if not MIN_EXTENT_M <= extent <= MAX_EXTENT_M:
-        raise MeshError(_size_message(path, unit, extent))
     if loaded.is_watertight:
         trimesh.repair.fix_normals(loaded, multibody=True)  # consistent, outward winding of every body
     mesh = Mesh(np.asarray(loaded.vertices) * UNITS[unit], np.asarray(loaded.faces))

@@ -46,7 +46,17 @@ class Renderer:
         self.cull = mesh.is_closed
         self._hull = _hull_points(mesh.vertices)
 
+        # Tile atlas: a power-of-two number of columns (exact NDC offsets), rows as needed.
+        self._cols = 1 << int(np.ceil(np.log2(np.sqrt(self.max_batch))))
+        rows = -(-self.max_batch // self._cols)
+        aw, ah = self._cols * self.tile, rows * self.tile
+        size = (self.width, self.height)
         ctx = self.ctx = gl_context()
+        # Checked before any GL object exists: a refused renderer leaves nothing to release.
+        _check_target_size(ctx, "silhouette atlas", (aw, ah),
+                           f"lower max_batch ({self.max_batch}: the particles per draw) or tile ({self.tile})")
+        _check_target_size(ctx, "image", size, "use a smaller camera resolution", texture=True)
+
         vert = shader_source("project.vert")
         self._sil_prog = ctx.program(vertex_shader=vert, fragment_shader=shader_source("silhouette.frag"))
         self._shade_prog = ctx.program(vertex_shader=vert, fragment_shader=shader_source("shaded.frag"))
@@ -75,12 +85,6 @@ class Renderer:
         )
         self._bg_vao = ctx.vertex_array(self._bg_prog, [])
 
-        # Tile atlas: a power-of-two number of columns (exact NDC offsets), rows as needed.
-        self._cols = 1 << int(np.ceil(np.log2(np.sqrt(self.max_batch))))
-        rows = -(-self.max_batch // self._cols)
-        aw, ah = self._cols * self.tile, rows * self.tile
-        _check_target_size(ctx, "silhouette atlas", (aw, ah),
-                           f"lower max_batch ({self.max_batch}: the particles per draw) or tile ({self.tile})")
         self._atlas = ctx.framebuffer(color_attachments=[ctx.renderbuffer((aw, ah), components=1, dtype="f1")])
         self._atlas_buf = np.zeros((ah, aw), dtype=np.uint8)
         slot = np.arange(self.max_batch)
@@ -91,8 +95,6 @@ class Renderer:
             axis=1,
         )  # fmt: skip
 
-        size = (self.width, self.height)
-        _check_target_size(ctx, "image", size, "use a smaller camera resolution", texture=True)
         self._full_box = np.array([-0.5, -0.5, self.width - 0.5, self.height - 0.5])
         self._full = ctx.framebuffer(color_attachments=[ctx.renderbuffer(size, components=1, dtype="f1")])
         self._full_buf = np.zeros((self.height, self.width), dtype=np.uint8)
@@ -142,8 +144,10 @@ class Renderer:
         self._sil_vao.render(moderngl.TRIANGLES, instances=m)
         buf = self._atlas_buf[: rows * t]
         self._atlas.read_into(buf, viewport=view, components=1, dtype="f1")
-        masks = buf.reshape(rows, t, self._cols, t).transpose(0, 2, 1, 3).reshape(-1, t, t)[:m]
-        masks = np.ascontiguousarray(masks)
+        # Always a new array: with one tile column the reshape alone would be a view of the buffer.
+        masks = np.empty((rows, self._cols, t, t), np.uint8)
+        masks[...] = buf.reshape(rows, t, self._cols, t).transpose(0, 2, 1, 3)
+        masks = masks.reshape(-1, t, t)[:m]
         masks[~visible] = 0
         return SilhouetteBatch(masks, boxes, visible)
 
