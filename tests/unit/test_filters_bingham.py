@@ -228,3 +228,12 @@ def test_table_command_builds_a_table_that_matches_the_quadrature(tmp_path):
     f, _ = bingham_table.normaliser_and_moments(-np.expm1(v[i])[None])
     assert log_f[i[0], i[1], i[2]] == pytest.approx(np.log(f[0]), rel=1e-6)
     assert log_f[i[2], i[0], i[1]] == pytest.approx(np.log(f[0]), rel=1e-6)
+
+
+@pytest.mark.parametrize("args", [["--z-max", "inf"], ["--z-max", "nan"], ["--z-max", "0"], ["--grid-size", "4"]])
+def test_table_command_rejects_bad_arguments(tmp_path, args, capsys):
+    """``--z-max inf`` used to write a table of NaNs."""
+    out = tmp_path / "table.npz"
+    with pytest.raises(SystemExit) as exc:
+        bingham_table.main([str(out), *args])
+    assert exc.value.code == 2 and "--z-max" in capsys.readouterr().err and not out.exists()

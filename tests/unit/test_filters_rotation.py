@@ -104,7 +104,8 @@ def test_translation_filter_tracks_constant_velocity():
 @pytest.mark.parametrize(
     "change",
     [{"rotation_filter": "kalman"}, {"dt": 0.0}, {"process_z": (-250.0, 1.0, -250.0)}, {"measurement_z": (-1e6,) * 3},
-     {"omega_process_std": -1.0}, {"ukf_alpha": 2.0}, {"outlier_prob": 1.0}, {"outlier_prob": -0.1}],
+     {"omega_process_std": -1.0}, {"ukf_alpha": 2.0}, {"ukf_kappa": np.inf}, {"ukf_beta": np.inf},
+     {"outlier_prob": 1.0}, {"outlier_prob": -0.1}],
 )
 def test_invalid_configuration_is_an_error(change):
     with pytest.raises(ValueError):
@@ -213,3 +214,46 @@ def test_ubigaf_prediction_with_process_noise_far_from_isotropic_does_not_fail()
     q, _ = f.estimate(s)
     assert np.all(np.isfinite(q)) and np.allclose(np.linalg.norm(q, axis=1), 1.0)
     assert np.linalg.eigvalsh(f.covariance(s)).min() >= -1e-12
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_concentrations_with_the_trailing_zero_configure_the_same_filter(kind):
+    """``Z = diag(z1, z2, z3, 0)`` given with its 0 is accepted and stored as the three values; the
+    UKF (which maps Z to tangent variances) used to fail on it with a reshape error."""
+    four = MotionFilterConfig(rotation_filter=kind, process_z=(-250.0, -300.0, -400.0, 0.0),
+                              measurement_z=(-800, -900, -1000, 0), initial_z=(-700.0, -700.0, -700.0, 0.0))
+    three = MotionFilterConfig(rotation_filter=kind, process_z=(-250.0, -300.0, -400.0),
+                               measurement_z=(-800.0, -900.0, -1000.0), initial_z=(-700.0, -700.0, -700.0))
+    assert four == three and four.process_z == (-250.0, -300.0, -400.0)
+    assert all(type(v) is float for v in four.measurement_z)
+    q = Rotation.random(3, random_state=11).as_quat()
+    meas = (Rotation.from_quat(q) * Rotation.from_rotvec(np.full((3, 3), 0.05))).as_quat()
+    a, b = make_rotation_filter(four), make_rotation_filter(three)
+    sa = a.update(a.predict(a.init(q, np.ones((3, 3)))), meas)
+    sb = b.update(b.predict(b.init(q, np.ones((3, 3)))), meas)
+    np.testing.assert_array_equal(a.estimate(sa)[0], b.estimate(sb)[0])
+    np.testing.assert_array_equal(a.covariance(sa), b.covariance(sb))
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_a_single_unbatched_filter_equals_a_batch_of_one(kind):
+    """States without a batch axis (``quat (4,)``) work with the outlier-aware update too
+    (the UBiF's raised on ``np.nonzero`` of a 0-d array)."""
+    filt = make_rotation_filter(MotionFilterConfig(rotation_filter=kind, outlier_prob=0.1))
+    q = Rotation.random(random_state=12).as_quat()
+    meas = (Rotation.from_quat(q) * Rotation.from_rotvec([0.3, -0.2, 0.1])).as_quat()  # partly trusted
+    single = filt.update(filt.predict(filt.init(q, np.ones(3))), meas)
+    batch = filt.update(filt.predict(filt.init(q[None], np.ones((1, 3)))), meas[None])
+    np.testing.assert_allclose(filt.estimate(single)[0], filt.estimate(batch)[0][0], atol=1e-12)
+    np.testing.assert_allclose(filt.estimate(single)[1], filt.estimate(batch)[1][0], atol=1e-12)
+    np.testing.assert_allclose(filt.covariance(single), filt.covariance(batch)[0], atol=1e-12)
+
+
+@pytest.mark.parametrize("cls", ["UBiF", "UBiGaF"])
+@pytest.mark.parametrize("dt", [np.inf, np.nan, 0.0])
+def test_bingham_filters_reject_a_non_finite_time_step(cls, dt):
+    from uav_landing_vision.filters import ubif, ubigaf
+
+    filt = {"UBiF": ubif.UBiF, "UBiGaF": ubigaf.UBiGaF}[cls]
+    with pytest.raises(ValueError, match="dt"):
+        filt(dt, (-250.0,) * 3, (-800.0,) * 3, np.full(3, 0.25))

@@ -115,3 +115,30 @@ def test_invalid_parameters_are_errors():
         TranslationUKF(DT, np.ones(6), np.array([1.0, 1.0, 0.0]))  # singular
     with pytest.raises(ValueError, match="symmetric"):
         TranslationUKF(DT, np.ones(6), np.eye(3) + np.diag([0.1, 0.1], k=1))
+
+
+@pytest.mark.parametrize("change", [{"kappa": np.inf}, {"beta": np.inf}, {"beta": np.nan}])
+def test_non_finite_unscented_parameters_are_errors(change):
+    """An infinite κ or β made every sigma-point weight NaN."""
+    with pytest.raises(ValueError, match="finite"):
+        UnscentedParams(**change)
+
+
+@pytest.mark.parametrize("dt", [np.inf, np.nan, -0.01])
+def test_non_finite_or_negative_time_steps_are_errors(dt):
+    """An infinite Δt made the transition matrix (A.2) and every prediction NaN."""
+    with pytest.raises(ValueError, match="dt"):
+        TranslationUKF(dt, np.ones(6), np.ones(3))
+    with pytest.raises(ValueError, match="dt"):
+        RotationUKF(dt, np.ones(6), np.ones(3))
+
+
+def test_asymmetry_of_a_small_covariance_is_an_error():
+    """The symmetry check was absolute (1e-8): at 1e-9 scale it let through a matrix whose
+    symmetric part is indefinite (eigenvalues −4e-9, 1e-9, 6e-9), while the definiteness check
+    reads only the lower triangle (here diagonal)."""
+    r = np.array([[1e-9, 5e-9, 0.0], [0.0, 1e-9, 0.0], [0.0, 0.0, 1e-9]])
+    with pytest.raises(ValueError, match="symmetric"):
+        TranslationUKF(DT, np.ones(6), r)
+    ukf = TranslationUKF(DT, np.ones(6) * 1e-12, 0.5 * (r + r.T) + 5e-9 * np.eye(3))  # symmetric, tiny: accepted
+    np.testing.assert_array_equal(ukf.r, 0.5 * (r + r.T) + 5e-9 * np.eye(3))

@@ -97,8 +97,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--grid-size", type=int, default=GRID_SIZE)
     parser.add_argument("--z-max", type=float, default=Z_MAX)
     args = parser.parse_args(argv)
-    if args.grid_size < 8 or not args.z_max > 0:
-        parser.error("need --grid-size >= 8 and --z-max > 0")
+    if args.grid_size < 8 or not 0 < args.z_max < np.inf:
+        parser.error("need --grid-size >= 8 and a finite --z-max > 0")
     table = {k: np.asarray(a, dtype=np.float32) for k, a in build(args.grid_size, args.z_max).items()}
     made_by = "python -m uav_landing_vision.filters.bingham_table OUTPUT"
     made_by += f" --grid-size {args.grid_size} --z-max {args.z_max:g}"

@@ -47,8 +47,9 @@ class MotionFilterConfig:
             raise ValueError(f"rotation_filter must be one of {KINDS}, got {self.rotation_filter!r}")
         if not (np.isfinite(self.dt) and self.dt > 0):
             raise ValueError(f"dt must be positive, got {self.dt}")
-        for name in ("process_z", "measurement_z", "initial_z"):
-            bingham.check_concentration(getattr(self, name), name)
+        for name in ("process_z", "measurement_z", "initial_z"):  # stored as (z1, z2, z3), also if given with the 0
+            z = bingham.check_concentration(getattr(self, name), name)
+            object.__setattr__(self, name, tuple(map(float, z)))
         stds = ("omega_process_std", "initial_omega_std", "position_process_std", "velocity_process_std",
                 "position_measurement_std", "initial_position_std", "initial_velocity_std")
         for name in stds:

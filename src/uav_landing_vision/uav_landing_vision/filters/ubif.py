@@ -18,7 +18,7 @@ import numpy as np
 
 from ..geometry import omega_quat, quat_canonical, quat_conjugate, quat_multiply
 from . import bingham, outliers
-from .ukf import spd_matrix, take_filters
+from .ukf import check_dt, spd_matrix, take_filters
 
 
 @dataclass(frozen=True)
@@ -70,9 +70,7 @@ class UBiF:
     ``outlier_prob`` > 0 makes the update outlier-aware (:mod:`.outliers`; 0 is the thesis's)."""
 
     def __init__(self, dt: float, process_z, measurement_z, omega_process_cov, outlier_prob: float = 0.0):
-        if not dt > 0:
-            raise ValueError(f"dt must be positive, got {dt}")
-        self.dt = dt
+        self.dt = check_dt(dt)
         self.outlier_prob = outliers.check_outlier_prob(outlier_prob)
         self.process_z = bingham.check_concentration(process_z, "process_z")
         self.measurement_z = bingham.check_concentration(measurement_z, "measurement_z")
@@ -125,7 +123,7 @@ class UBiF:
             evidence = bingham.product_log_evidence(m_meas, self.measurement_z, s.m, s.z) - np.log(4.0)
             w = outliers.inlier_probability(evidence, self.outlier_prob)
             # Below 1e-3 the prediction's share changes the moments less than the table's accuracy.
-            mixed = np.nonzero(w < 1.0 - 1e-3)
+            mixed = w < 1.0 - 1e-3
             wq = w[mixed][..., None, None]
             cov = wq * bingham.covariance(m[mixed], z[mixed])
             cov += (1.0 - wq) * bingham.covariance(s.m[mixed], s.z[mixed])

@@ -11,7 +11,7 @@ import numpy as np
 
 from ..geometry import omega_quat, quat_canonical, quat_conjugate, quat_multiply
 from . import bingham, outliers
-from .ukf import kalman_update, spd_matrix, take_filters, unscented_moments
+from .ukf import check_dt, kalman_update, spd_matrix, take_filters, unscented_moments
 
 N_SIGMA = 13  # 2r + 2s + 1 with r = s = 3 (Appendix E)
 
@@ -90,9 +90,7 @@ class UBiGaF:
     the update outlier-aware (:mod:`.outliers`; 0 is the thesis's)."""
 
     def __init__(self, dt: float, process_z, measurement_z, omega_process_cov, outlier_prob: float = 0.0):
-        if not dt > 0:
-            raise ValueError(f"dt must be positive, got {dt}")
-        self.dt = dt
+        self.dt = check_dt(dt)
         self.outlier_prob = outliers.check_outlier_prob(outlier_prob)
         process_z = bingham.check_concentration(process_z, "process_z")
         measurement_z = bingham.check_concentration(measurement_z, "measurement_z")

@@ -34,8 +34,8 @@ class UnscentedParams:
     def __post_init__(self):
         if not 0.0 < self.alpha <= 1.0:
             raise ValueError(f"alpha must be in (0, 1], got {self.alpha}")
-        if not (self.beta >= 0.0 and self.kappa >= 0.0):
-            raise ValueError("beta and kappa must be non-negative")
+        if not (0.0 <= self.beta < np.inf and 0.0 <= self.kappa < np.inf):
+            raise ValueError(f"beta and kappa must be finite and non-negative, got {self.beta}, {self.kappa}")
 
     def weights(self, n: int) -> tuple[np.ndarray, np.ndarray, float]:
         """Mean and covariance weights (A.17), (A.18), (A.21) and the scale ι (A.13)."""
@@ -120,11 +120,9 @@ class TranslationUKF:
     """Constant-velocity UKF on ``t = [X, Y, Z, v_x, v_y, v_z]`` (A.1)–(A.2), observing the position."""
 
     def __init__(self, dt: float, process_cov, measurement_cov, params: UnscentedParams = UnscentedParams()):
-        if not dt > 0:
-            raise ValueError(f"dt must be positive, got {dt}")
         self.q = spd_matrix(process_cov, 6, "process_cov")
         self.r = spd_matrix(measurement_cov, 3, "measurement_cov")
-        self.f = np.block([[np.eye(3), dt * np.eye(3)], [np.zeros((3, 3)), np.eye(3)]])  # (A.2)
+        self.f = np.block([[np.eye(3), check_dt(dt) * np.eye(3)], [np.zeros((3, 3)), np.eye(3)]])  # (A.2)
         self.wm, self.wc, self.iota = params.weights(6)
 
     def init(self, pos: np.ndarray, vel: np.ndarray, cov) -> UKFState:
@@ -166,9 +164,7 @@ class RotationUKF:
 
     def __init__(self, dt: float, process_cov, measurement_cov, params: UnscentedParams = UnscentedParams(),
                  outlier_prob: float = 0.0):
-        if not dt > 0:
-            raise ValueError(f"dt must be positive, got {dt}")
-        self.dt = dt
+        self.dt = check_dt(dt)
         self.outlier_prob = outliers.check_outlier_prob(outlier_prob)
         self.q = spd_matrix(process_cov, 6, "process_cov")  # Q^a = diag(Q^r, Q^ω) (A.9)
         self.r = spd_matrix(measurement_cov, 3, "measurement_cov")
@@ -209,12 +205,19 @@ class RotationUKF:
         return quat_canonical(quat_multiply(s.q, quat_from_rodrigues(s.x[..., :3]))), s.x[..., 3:].copy()
 
 
+def check_dt(dt: float) -> float:
+    """The time step Δt: finite and positive."""
+    if not (np.isfinite(dt) and dt > 0):
+        raise ValueError(f"dt must be finite and positive, got {dt}")
+    return dt
+
+
 def spd_matrix(a, n: int, name: str) -> np.ndarray:
     """A symmetric positive-definite ``(n, n)`` matrix from a matrix or a diagonal."""
     a = np.asarray(a, dtype=float)
     if a.ndim == 1:
         a = np.diag(a)
-    if a.shape != (n, n) or not np.all(np.isfinite(a)) or not np.allclose(a, a.T):
+    if a.shape != (n, n) or not np.all(np.isfinite(a)) or not np.allclose(a, a.T, 0.0, 1e-9 * np.abs(a).max()):
         raise ValueError(f"{name} must be a finite symmetric {n}x{n} matrix or a length-{n} diagonal")
     if np.any(np.linalg.eigvalsh(a) <= 0):
         raise ValueError(f"{name} must be positive definite")
