@@ -9,6 +9,7 @@ import yaml
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from rclpy.parameter import Parameter
 from scipy.spatial.transform import Rotation
+from std_srvs.srv import Trigger
 from test_node_common import ros  # noqa: F401 (fixture)
 
 from uav_landing_msgs.msg import LandingGuidance, TrackerStatus
@@ -109,6 +110,33 @@ def test_a_tracked_pose_gives_guidance_and_mavlink(ros, mavlink_receiver):
     assert odometry is not None
     assert [odometry.x, odometry.y, odometry.z] == pytest.approx([x, y, z], abs=1e-5)  # float32 on the wire
     assert rig.node.counters["dropped"] == 0
+
+
+def test_the_reset_service_returns_the_stage_machine_to_loiter(ros, mavlink_receiver):
+    rig = Rig(ros, mavlink_receiver.port.getsockname()[1])
+    client = ros.probe.create_client(Trigger, "/gcs_bridge/reset")
+    assert ros.spin_until(client.service_is_ready), "service discovery"
+
+    def tracked():
+        msg = rig.pose()
+        rig.pose_pub.publish(msg)
+        rig.status_pub.publish(TrackerStatus(header=msg.header, state=TrackerStatus.TRACKING))
+        return any(g.stage == LandingGuidance.APPROACH for g in rig.guidance)
+
+    assert ros.spin_until(tracked)
+    future = client.call_async(Trigger.Request())
+    assert ros.spin_until(future.done)
+    assert future.result().success and future.result().message == "stage APPROACH -> LOITER"
+    texts = []
+    for _ in range(100):
+        text = mavlink_receiver.recv_match(type="STATUSTEXT", blocking=True, timeout=0.1)
+        if text is not None:
+            texts.append(text.text)
+        if texts and "reset" in texts[-1]:
+            break
+    assert texts[-1] == "VISION LOITER (operator reset from APPROACH)", texts
+    future = client.call_async(Trigger.Request())  # already in LOITER once the poses stop: nothing to announce
+    assert ros.spin_until(future.done) and future.result().success
 
 
 def test_without_inputs_guidance_says_loiter_with_no_track(ros, mavlink_receiver):

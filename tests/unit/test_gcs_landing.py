@@ -196,8 +196,10 @@ def test_loss_inside_no_return_stays_no_return(bridge):
     results = fly(bridge, lambda t: None if t > t_loss else approach()(t), t_end=t_loss + 2.0)
     assert stages(results)[-1] == Stage.NO_RETURN
     assert bridge.sender.poses[-1][0] <= t_loss
-    bridge.reset()
-    assert bridge.stage == Stage.LOITER
+    texts = len(bridge.sender.texts)
+    assert bridge.reset() == Stage.NO_RETURN and bridge.stage == Stage.LOITER
+    assert bridge.sender.texts[texts:] == [("VISION LOITER (operator reset from NO_RETURN)", 5)]  # NOTICE
+    assert bridge.reset() == Stage.LOITER and len(bridge.sender.texts) == texts + 1  # no change, no text
 
 
 def test_leaving_the_cone_goes_around(bridge):

@@ -123,9 +123,15 @@ class GcsBridge:
             self._lost_since_tick = True
         self._confirm()
 
-    def reset(self) -> None:
-        """Operator reset of the stage machine (e.g. after recovery from the net)."""
+    def reset(self) -> Stage:
+        """Operator reset of the stage machine to LOITER (e.g. after recovery from the net).
+
+        Announced to the GCS by STATUSTEXT when it changes the stage; returns the stage before."""
+        before = self._machine.stage
         self._machine.reset()
+        if before is not Stage.LOITER:
+            self._sender.send_statustext(f"VISION LOITER (operator reset from {before.name})", mav2.MAV_SEVERITY_NOTICE)
+        return before
 
     def tick(self, now_s: float) -> TickResult:
         self._forget_pose_ahead_of(now_s)

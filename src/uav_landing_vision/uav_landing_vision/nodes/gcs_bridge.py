@@ -7,12 +7,15 @@ and publishes its ``LandingGuidance`` (frame ``landing``: x bow, y starboard, z 
 the net), stamped with its pose's header stamp as received (the core's float seconds cannot hold
 an epoch stamp to the nanosecond) or, without a fresh pose, the tick's time. Parameters: ``config/gcs_bridge.yaml``, validated into ``gcs.GcsBridgeConfig``.
 A malformed pose (NaN, non-unit quaternion, bad covariance) or an unknown tracker state is
-logged and dropped; no position is sent for it.
+logged and dropped; no position is sent for it. The service ``~/reset`` (std_srvs/Trigger) is the
+operator's reset of the stage machine to LOITER (NO_RETURN holds until it, e.g. after recovery
+from the net).
 """
 
 import sys
 
 from geometry_msgs.msg import PoseWithCovarianceStamped
+from std_srvs.srv import Trigger
 from uav_landing_msgs.msg import LandingGuidance, TrackerStatus
 
 from ..config import ConfigError
@@ -36,6 +39,7 @@ class GcsBridgeNode(LandingNode):
         self._guidance = self.create_publisher(LandingGuidance, "uav/landing_guidance", RELIABLE_QOS)
         self.create_subscription(PoseWithCovarianceStamped, "uav/pose", self._on_pose, RELIABLE_QOS)
         self.create_subscription(TrackerStatus, "uav/tracker_status", self._on_status, RELIABLE_QOS)
+        self.create_service(Trigger, "~/reset", self._on_reset)
         self.create_timer(1.0 / self.config.mavlink.rate_hz, self._tick)
         self.get_logger().info(f"MAVLink {self.config.mavlink.messages} to {self.config.mavlink.connection}")
 
@@ -66,6 +70,13 @@ class GcsBridgeNode(LandingNode):
             self._bridge.on_tracker_state(msg.state, stamp_ns(msg.header.stamp) * 1e-9)
         except ValueError as exc:
             self.drop(f"uav/tracker_status rejected: {exc}")
+
+    def _on_reset(self, _request, response):
+        before = self._bridge.reset()
+        response.success = True
+        response.message = f"stage {before.name} -> LOITER"
+        self.get_logger().warning(f"operator reset: {response.message}")
+        return response
 
     def _tick(self) -> None:
         result = self._bridge.tick(self._now_s())
