@@ -139,3 +139,66 @@ def test_no_opengl_is_one_line_naming_what_to_install(tmp_path):
     assert run.returncode == 1 and "Traceback" not in run.stderr
     assert run.stderr.startswith("uav-landing simulate: cannot create a headless OpenGL 4.3 context")
     assert "apt-get install libegl1 libgl1" in run.stderr and not (tmp_path / "bag").exists()
+
+
+def _never_run(monkeypatch):
+    """Every evaluation's long run fails the test: a refusal must come before it."""
+    import importlib
+
+    def ran(*args, **kwargs):
+        raise AssertionError("the run started before its arguments were checked")
+
+    for module, name in (("uav_landing_vision.tracking.evaluate", "evaluate_bag"),
+                         ("uav_landing_vision.tracking.metric_sweep", "run_sweep"),
+                         ("uav_landing_vision.tracking.optimiser_evaluation", "evaluate_optimisers"),
+                         ("uav_landing_vision.boosting.evaluation", "evaluate_boosting"),
+                         ("uav_landing_vision.boosting.database", "build_database"),
+                         ("uav_landing_vision.evaluation.score", "score_files")):
+        monkeypatch.setattr(importlib.import_module(module), name, ran)
+
+
+def test_evaluation_commands_refuse_an_unwritable_output_before_running(tmp_path, monkeypatch, bags):
+    """Not once the run is over and its results lost."""
+    _never_run(monkeypatch)
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    under_file = str(blocker / "sub" / "x.json")
+    score = ["score", "--truth", str(bags / "full"), "--estimate", str(blocker)]
+    for argv, message in (
+            ([*score, "--json", under_file], f"--json {re.escape(under_file)}: {blocker} is not a writable folder"),
+            ([*score, "--json", str(tmp_path)], f"--json {tmp_path} is a folder"),
+            ([*score, "--json", str(tmp_path / "s.json"), "--report-dir", str(blocker)],
+             f"--report-dir {blocker} is not a folder"),
+            (["evaluate", "--bag", str(bags / "full"), "--json", under_file], "--json .* is not a writable folder"),
+            (["evaluate", "--bag", str(bags / "full"), "--plots", str(blocker)], "--plots .* is not a folder"),
+            (["eval-metrics", "--out", str(blocker)], "--out .* is not a folder"),
+            (["eval-optimisers", "--json", under_file], "--json .* is not a writable folder"),
+            (["eval-boosting", "--json", str(tmp_path)], "--json .* is a folder"),
+            (["build-database", "--out", under_file], "--out .* is not a writable folder")):
+        _refused(argv, message)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]
+
+
+def test_evaluation_commands_name_the_option_of_a_bad_number(tmp_path, monkeypatch, bags):
+    _never_run(monkeypatch)
+    for argv, message in (
+            (["evaluate", "--bag", str(bags / "full"), "--seed", "-1"], "--seed must be non-negative, got -1"),
+            (["eval-metrics", "--out", str(tmp_path), "--seed", "-1"], "--seed must be non-negative, got -1"),
+            (["eval-metrics", "--out", str(tmp_path), "--distance", "inf"], "--distance must be finite"),
+            (["eval-optimisers", "--seed", "-1"], "seed must be non-negative, got -1"),
+            (["eval-optimisers", "--distances", "5", "inf"],
+             r"distances must be finite and positive, got \(5.0, inf\)"),
+            (["eval-boosting", "--seed", "-1"], "seed must be non-negative, got -1"),
+            (["eval-boosting", "--distances", "nan"], r"distances must be finite and positive, got \(nan,\)"),
+            (["eval-boosting", "--aspect-weight", "0"], "aspect_weight must be finite and positive, got 0.0"),
+            (["eval-boosting", "--aspect-weight", "nan"], "aspect_weight must be finite and positive, got nan"),
+            (["build-database", "--out", str(tmp_path / "db.npz"), "--seed", "-1"],
+             "--seed must be non-negative, got -1")):
+        _refused(argv, message)
+
+
+def test_evaluations_refuse_distances_that_share_a_table(monkeypatch):
+    """Each distance has its own table, keyed by its printed value: a repeat would silently replace one."""
+    _never_run(monkeypatch)
+    _refused(["eval-boosting", "--distances", "5", "15", "5.0"], r"distances must differ, got \(5.0, 15.0, 5.0\)")
+    _refused(["eval-optimisers", "--distances", "5", "5.0000001"], r"distances must differ, got \(5.0, 5.0000001\)")

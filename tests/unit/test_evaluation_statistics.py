@@ -186,3 +186,27 @@ def test_one_value_has_no_sample_standard_deviation():
     assert s["median"] == s["mae"] == s["rmse"] == 2.5
     assert np.isnan(s["sd"])
     assert error_statistics([2.5, 3.5])["sd"] == pytest.approx(np.std([2.5, 3.5], ddof=1))
+
+
+def test_pose_errors_and_statistics_match_scipy():
+    from scipy import stats
+    from scipy.spatial.transform import Rotation
+
+    from uav_landing_vision.evaluation.consistency import depth_bins
+
+    rng = np.random.default_rng(4)
+    q_true, q_est = Rotation.random(40, random_state=5), Rotation.random(40, random_state=6)
+    t_true = rng.normal(size=(40, 3)) * 10.0
+    t_est = t_true + rng.normal(size=(40, 3))
+    err = pose_errors(t_true, q_true.as_quat(), t_est, q_est.as_quat())
+    np.testing.assert_allclose(err["geodesic"], np.degrees((q_true.inv() * q_est).magnitude()), atol=1e-9)
+    euler = np.degrees((q_true * q_est.inv()).as_euler("ZYX"))  # (6.4): q_e = q_g ⊗ q̄_r, [γ, β, α]
+    np.testing.assert_allclose(np.c_[err["alpha"], err["beta"], err["gamma"]], euler[:, ::-1], atol=1e-9)
+    np.testing.assert_allclose(err["euclidean"], np.linalg.norm(t_est - t_true, axis=1))
+    s = error_statistics(err["x"])
+    np.testing.assert_allclose([s[k] for k in ("p5", "p25", "median", "p75", "p95")],
+                               stats.scoreatpercentile(err["x"], [5, 25, 50, 75, 95]))
+    np.testing.assert_allclose([s["sd"], s["rmse"]], [stats.tstd(err["x"]), np.sqrt(np.mean(err["x"] ** 2))])
+    depth = np.array([0.0, 7.999, 8.0, 15.0, 29.99, 30.0, 60.0, 1e9])
+    assert [depth[m].tolist() for _, m in depth_bins(depth)] == [
+        [0.0, 7.999], [8.0], [15.0, 29.99], [30.0], [60.0, 1e9], depth.tolist()]  # bins are [lo, hi)

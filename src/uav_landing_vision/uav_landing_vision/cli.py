@@ -6,7 +6,9 @@ importing heavy modules only inside the handlers so that ``uav-landing --help`` 
 
 import argparse
 import importlib
+import os
 import sys
+from pathlib import Path
 
 _COMMAND_MODULES = [
     "uav_landing_vision.demo",
@@ -18,6 +20,21 @@ _COMMAND_MODULES = [
     "uav_landing_vision.evaluation.commands",
     "uav_landing_vision.tracking.commands",
 ]
+
+
+def check_output(option: str, path, folder: bool = False) -> None:
+    """ValueError unless ``path`` (a file, or with ``folder`` a folder) can be written: checked
+    before a long run rather than after it, when its results would be lost."""
+    path = Path(path).absolute()
+    if path.exists():
+        if path.is_dir() != folder:
+            raise ValueError(f"{option} {path} is {'not ' if folder else ''}a folder")
+        if not os.access(path, os.W_OK | (os.X_OK if folder else 0)):
+            raise ValueError(f"{option} {path} is not writable")
+        return
+    above = next(p for p in path.parents if p.exists())
+    if not (above.is_dir() and os.access(above, os.W_OK | os.X_OK)):
+        raise ValueError(f"{option} {path}: {above} is not a writable folder")
 
 
 def build_parser() -> argparse.ArgumentParser:

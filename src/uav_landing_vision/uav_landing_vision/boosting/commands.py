@@ -55,9 +55,13 @@ def _load_camera_and_mesh(args):
 def _build(args) -> int:
     import time
 
+    from ..cli import check_output
     from .database import FULL_SPHERE_DEG, DatabaseConfig, build_database
 
+    if args.seed < 0:
+        raise SystemExit(f"uav-landing build-database: --seed must be non-negative, got {args.seed}")
     try:
+        check_output("--out", args.out)
         camera, mesh = _load_camera_and_mesh(args)
         config = DatabaseConfig(
             count=args.count, distance=args.distance, seed=args.seed,
@@ -77,17 +81,18 @@ def _build(args) -> int:
 def _evaluate(args) -> int:
     import json
 
+    from ..cli import check_output
     from .evaluation import BoostingEvalConfig, evaluate_boosting, format_tables
 
-    if args.samples < 1 or min(args.top) < 1 or min(args.distances) <= 0:
-        raise SystemExit("uav-landing eval-boosting: --samples and --top must be positive, --distances above zero")
     try:
-        camera, mesh = _load_camera_and_mesh(args)
         config = BoostingEvalConfig(
             samples=args.samples, distances=tuple(args.distances), top=tuple(sorted(set(args.top))),
             seed=args.seed, placement=args.placement, centre_offset=not args.thesis_centre,
             aspect_weight=args.aspect_weight,
         )
+        if args.json is not None:
+            check_output("--json", args.json)
+        camera, mesh = _load_camera_and_mesh(args)
         result = evaluate_boosting(camera, mesh, config, database_path=args.database, progress=not args.quiet)
     except (ValueError, OSError) as exc:  # CameraInfoError, MeshError, DatabaseError, bad settings, files
         raise SystemExit(f"uav-landing eval-boosting: {exc}") from None

@@ -26,6 +26,15 @@ PLACEMENTS = ("axis", "view")
 BACKGROUND_FRAMES = 8
 
 
+def check_distances(distances) -> None:
+    """ValueError unless ``distances`` (m) are finite, positive and differ as printed (``:g``),
+    each the key of its own table."""
+    if not distances or not all(0 < d < np.inf for d in distances):
+        raise ValueError(f"distances must be finite and positive, got {distances}")
+    if len({f"{d:g}" for d in distances}) != len(distances):
+        raise ValueError(f"distances must differ, got {distances}")
+
+
 @dataclass(frozen=True)
 class BoostingEvalConfig:
     """Samples per distance, distances (m), top-k, seed, placement, centre offset, FAST, (4.4) weight."""
@@ -42,6 +51,13 @@ class BoostingEvalConfig:
     def __post_init__(self):
         if self.placement not in PLACEMENTS:
             raise ValueError(f"placement must be one of {PLACEMENTS}, got {self.placement!r}")
+        if self.samples < 1 or not self.top or min(self.top) < 1:
+            raise ValueError(f"samples and top must be positive, got {self.samples} and {self.top}")
+        check_distances(self.distances)
+        if self.seed < 0:
+            raise ValueError(f"seed must be non-negative, got {self.seed}")
+        if not 0 < self.aspect_weight < np.inf:
+            raise ValueError(f"aspect_weight must be finite and positive, got {self.aspect_weight}")
 
 
 def normal_backgrounds(camera: CameraModel, count: int, seed: int):

@@ -25,6 +25,7 @@ def _run(args) -> int:
         variant_summary,
         write_report,
     )
+    from ..cli import check_output
     from .score import score_files
     from .statistics import ROTATION_COLUMNS, TRANSLATION_COLUMNS
 
@@ -32,6 +33,9 @@ def _run(args) -> int:
         if not path.exists():
             raise SystemExit(f"uav-landing score: {what} {path} does not exist")
     try:
+        check_output("--json", args.json)
+        if args.report_dir:
+            check_output("--report-dir", args.report_dir, folder=True)
         errors, ms = score_files(args.truth, args.estimate, args.topic)
     except ValueError as exc:
         raise SystemExit(f"uav-landing score: {exc}") from exc

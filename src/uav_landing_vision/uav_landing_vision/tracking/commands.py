@@ -47,16 +47,20 @@ def register(sub) -> None:
 
 def _run_optimisers(args) -> int:
     from ..camera import load_camera_info_yaml
+    from ..cli import check_output
     from ..model import fixed_wing_mesh
     from ..resources import config_path
     from .optimisation import SECTION_6_6_NOISE
     from .optimiser_evaluation import OptimiserEvalConfig, evaluate_optimisers, format_tables
 
+    optimisers = tuple(dict.fromkeys(o.strip() for o in args.optimisers.split(",") if o.strip()))
     try:
         config = OptimiserEvalConfig(
             samples=args.samples, distances=tuple(args.distances), particles=args.particles,
-            iterations=args.iterations, optimisers=tuple(o.strip() for o in args.optimisers.split(",") if o.strip()),
+            iterations=args.iterations, optimisers=optimisers,
             pfo=replace(SECTION_6_6_NOISE, schedule=args.pfo_schedule, resampling=args.pfo_resampling), seed=args.seed)
+        if args.json is not None:
+            check_output("--json", args.json)
     except ValueError as exc:
         raise SystemExit(f"uav-landing eval-optimisers: {exc}") from None
     camera = load_camera_info_yaml(config_path("camera.yaml"))
@@ -70,11 +74,15 @@ def _run_optimisers(args) -> int:
 
 
 def _run(args) -> int:
+    from ..cli import check_output
     from .metric_sweep import run_sweep, write_results
 
-    if not args.distance > 0.5:
-        raise SystemExit("uav-landing eval-metrics: --distance must exceed 0.5 m")
+    if not 0.5 < args.distance < float("inf"):
+        raise SystemExit(f"uav-landing eval-metrics: --distance must be finite and exceed 0.5 m, got {args.distance}")
+    if args.seed < 0:
+        raise SystemExit(f"uav-landing eval-metrics: --seed must be non-negative, got {args.seed}")
     try:
+        check_output("--out", args.out, folder=True)
         result = run_sweep(tuple(dict.fromkeys(args.metric or _METRICS)), args.distance, args.background,
                            args.seed, args.tile)
     except ValueError as exc:

@@ -26,6 +26,7 @@ def register(sub) -> None:
 
 
 def _run(args) -> int:
+    from ..cli import check_output
     from ..config import ConfigError
     from ..evaluation import save_summary, write_report
     from .evaluate import EvaluationError, evaluate_bag, format_results, parse_variants, sequence_label, summary
@@ -37,6 +38,12 @@ def _run(args) -> int:
             raise ValueError("--frames must be at least 1")
         if args.start < 0:
             raise ValueError("--start must be non-negative")
+        if args.seed < 0:
+            raise ValueError(f"--seed must be non-negative, got {args.seed}")
+        if args.json:
+            check_output("--json", args.json)
+        if args.plots:
+            check_output("--plots", args.plots, folder=True)
         base = load_tracker_config(args.config)
         result = evaluate_bag(args.bag, variants, particles=args.particles, metric=args.metric,
                               roi_source=args.roi_source, frames=args.frames, start=args.start, seed=args.seed, base=base)

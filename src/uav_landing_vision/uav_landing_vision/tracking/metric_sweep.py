@@ -123,8 +123,8 @@ def run_sweep(metrics=tuple(VARIANTS), distance: float = NOMINAL_DISTANCE_M, bac
     from ..model import fixed_wing_mesh
     from ..render import Renderer
 
-    if not distance > 0.5:
-        raise ValueError(f"distance must exceed 0.5 m, got {distance}")
+    if not 0.5 < distance < np.inf:
+        raise ValueError(f"distance must be finite and exceed 0.5 m, got {distance}")
     camera, frame = sweep_frame(background, distance, seed)
     renderer = Renderer(camera, fixed_wing_mesh("low"), tile=tile, max_batch=512)
     scorers = {}
