@@ -232,6 +232,8 @@ def test_missing_and_corrupt_bags_fail_start_up(ros, tmp_path):
         ({"mode": "paced", "pace_topic": "/nope"}, "pace_topic: '/nope' is not a playable topic"),
         ({"mode": "paced", "pace_topic": "/uav/ground_truth", "ack_type": "std_msgs/msg/String"}, "ack_type: 'std_msgs/msg/String' is not an installed message type with a header"),
         ({"mode": "paced", "ack_type": "nope_msgs/msg/Nope"}, "ack_type: 'nope_msgs/msg/Nope'"),
+        ({"mode": "paced", "ack_topic": "camera/image~rect"}, "ack_topic: 'camera/image~rect' is not a valid topic name: .*tilde"),
+        ({"ready_topics": ["/camera/image_raw", "uav pose"]}, "ready_topics: 'uav pose' is not a valid topic name: .*alphanumerics"),
     ],
 )
 def test_bad_parameters_fail_start_up(ros, tmp_path, params, message):

@@ -20,7 +20,7 @@ from sensor_msgs.msg import CameraInfo, Image
 
 from uav_landing_vision.camera import CameraModel, camera_info_fields
 from uav_landing_vision.config import ConfigError
-from uav_landing_vision.nodes.base import LandingNode
+from uav_landing_vision.nodes.base import LandingNode, run_node
 from uav_landing_vision.nodes.image import ImageError, image_to_numpy, numpy_to_image
 from uav_landing_vision.nodes.qos import IMAGE_QOS, RELIABLE_QOS, SENSOR_QOS, qos_for_type
 from uav_landing_vision.nodes.sync import RepeatedStampError, StampCache
@@ -262,6 +262,57 @@ def test_a_name_given_both_as_a_value_and_as_a_group_fails_start_up(ros, leaf_fi
     overrides = [Parameter("inner", value="x"), Parameter("inner.gain", value=2.0)]
     with pytest.raises(ConfigError, match="parameter inner"):
         _Probe(context=ros.context, parameter_overrides=overrides if leaf_first else overrides[::-1])
+
+
+def test_an_empty_list_parameter_is_an_empty_tuple(ros, tmp_path):
+    """rcl hands ``[]`` (YAML or ``-p``) over untyped; rclpy refused to declare it and the node died."""
+    params = tmp_path / "probe.yaml"
+    params.write_text("config_probe:\n  ros__parameters:\n    inner:\n      names: []\n")
+    node = ros.add(_Probe(context=ros.context, cli_args=["--ros-args", "--params-file", str(params)]))
+    assert node.config == _Config(inner=_Inner(names=()))
+    with pytest.raises(ConfigError, match=r"count: expected an integer, got \[\]"):
+        _Probe(context=ros.context, cli_args=["--ros-args", "-p", "count:=[]"])
+
+
+@pytest.mark.parametrize(
+    "ros_args, message",
+    [
+        (["--params-file", "/nonexistent/probe.yaml"], "Couldn't parse params file: '--params-file /nonexistent/probe.yaml'"),
+        (["-p", "inner.gain:=[1, 2.5]"], "Couldn't parse parameter override rule"),
+        (["--bogus"], "--bogus"),
+    ],
+)
+def test_run_node_exits_2_on_unusable_ros_arguments(capsys, ros_args, message):
+    """A missing or malformed parameter file is a start-up failure like a bad value: one line, code 2."""
+    assert run_node(_Probe, ["--ros-args", *ros_args]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("[FATAL] cannot start: ") and message in err and "Traceback" not in err
+
+
+def test_run_node_exits_2_naming_an_empty_list_given_for_a_value(capsys, ros_domain_id, monkeypatch):
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(ros_domain_id))
+    assert run_node(_Probe, ["--ros-args", "-p", "count:=[]"]) == 2
+    assert "count: expected an integer, got []" in capsys.readouterr().err
+
+
+class _PublishesAfterShutdown(_Probe):
+    """A callback at work when Ctrl-C / SIGTERM shuts the context down (as rclpy's signal handler
+    does), publishing once it is done."""
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.create_timer(0.01, self._work)
+
+    def _work(self):
+        self.context.shutdown()
+        self.publish_diagnostics()
+
+
+def test_run_node_exits_0_when_a_callback_publishes_after_the_shutdown(capsys, ros_domain_id, monkeypatch):
+    """rclpy raised RCLError ("publisher's context is invalid") out of the executor: exit code 1, a traceback."""
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(ros_domain_id))
+    assert run_node(_PublishesAfterShutdown, ["--ros-args"]) == 0
+    assert not rclpy.ok()
 
 
 def test_diagnostics_report_counters_and_the_last_error(ros):

@@ -114,6 +114,22 @@ def test_idle_timeout_ends_the_sequence(ros, tmp_path):
     assert summary["frames"] == 1 and summary["variants"]["C4N2"]["lost_frames_pct"] == 100.0
 
 
+def test_a_publish_racing_the_shutdown_still_writes_the_report(ros, tmp_path):
+    """Ctrl-C while a callback publishes (here /diagnostics): rclpy's RCLError left run_until_done
+    and the report of the whole replay was lost."""
+    rig = Rig(ros, tmp_path)
+    rig.truth_pub.publish(truth_msg(0))
+    assert ros.spin_until(lambda: rig.node.counters["truth_received"] == 1)
+
+    def shut_down_then_publish():
+        ros.context.shutdown()
+        rig.node.publish_diagnostics()
+
+    rig.node.create_timer(0.01, shut_down_then_publish)
+    assert run_until_done(rig.node, ros.executor) == 0
+    assert json.loads((tmp_path / "report" / "summary.json").read_text())["frames"] == 1
+
+
 def test_sigint_writes_the_report_and_exits_cleanly(ros, ros_domain_id, tmp_path):
     env = dict(os.environ, ROS_DOMAIN_ID=str(ros_domain_id), PYTHONUNBUFFERED="1")
     log = tmp_path / "evaluator.log"

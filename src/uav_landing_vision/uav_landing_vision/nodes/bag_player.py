@@ -82,6 +82,7 @@ class BagPlayer(LandingNode):
     def __init__(self, **kwargs):
         super().__init__("bag_player", **kwargs)
         self.config = cfg = self.load_config(BagPlayerConfig)
+        self._ready_topics = [_resolved(self, "ready_topics", topic) for topic in cfg.ready_topics]
         self._reader = _open_bag(cfg.bag)
         self._players = {}
         self._played = set()  # ids of the connections whose messages are played
@@ -99,7 +100,8 @@ class BagPlayer(LandingNode):
             ack_cls = _message_class(cfg.ack_type)
             if ack_cls is None or "header" not in ack_cls.get_fields_and_field_types():
                 raise ConfigError(f"ack_type: '{cfg.ack_type}' is not an installed message type with a header")
-            self._ack_sub = self.create_subscription(ack_cls, cfg.ack_topic, self._on_ack, qos_for_type(cfg.ack_type))
+            ack_topic = _resolved(self, "ack_topic", cfg.ack_topic)
+            self._ack_sub = self.create_subscription(ack_cls, ack_topic, self._on_ack, qos_for_type(cfg.ack_type))
         topics = {c.topic: c.msgcount for c in self._reader.connections if c.topic in self._players}
         self.get_logger().info(f"bag {cfg.bag}: {self._reader.message_count} messages, topics {topics}, mode {cfg.mode}")
 
@@ -180,8 +182,7 @@ class BagPlayer(LandingNode):
 
     def _missing(self) -> list[str]:
         missing = []
-        for topic in self.config.ready_topics:
-            name = self.resolve_topic_name(topic)
+        for name in self._ready_topics:
             own = self._players.get(name)
             if own is not None and own.get_subscription_count() == 0:
                 missing.append(f"subscriber of {name}")
@@ -239,6 +240,14 @@ def _open_bag(path: str) -> Reader:
     except (ReaderError, OSError) as exc:
         raise ConfigError(f"bag: '{path}' is not a readable rosbag2 bag: {exc}") from exc
     return reader
+
+
+def _resolved(node, key: str, topic: str) -> str:
+    """``topic`` as ``node`` resolves it; :class:`ConfigError` naming parameter ``key`` if it is no topic name."""
+    try:
+        return node.resolve_topic_name(topic)
+    except RuntimeError as exc:  # rclpy's RCLError
+        raise ConfigError(f"{key}: '{topic}' is not a valid topic name: {exc}") from exc
 
 
 def _message_class(type_name: str):

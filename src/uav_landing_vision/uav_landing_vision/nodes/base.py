@@ -12,6 +12,7 @@ from collections import Counter
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
@@ -23,6 +24,8 @@ from .qos import RELIABLE_QOS
 DIAGNOSTICS_PERIOD_S = 1.0
 # Parameters every rclpy node declares itself; they are not part of a node's configuration.
 ROS_PARAMETERS = frozenset({"use_sim_time", "start_type_description_service"})
+# What an executor can raise when Ctrl-C / SIGTERM end a node (see stopped_by_shutdown).
+SHUTDOWN_ERRORS = (KeyboardInterrupt, ExternalShutdownException, RuntimeError)
 
 
 class LandingNode(Node):
@@ -33,13 +36,21 @@ class LandingNode(Node):
     """
 
     def __init__(self, name: str, **kwargs):
-        super().__init__(name, automatically_declare_parameters_from_overrides=True, **kwargs)
+        super().__init__(name, **kwargs)
+        self._declare_overrides()
         self.counters = Counter(received=0, dropped=0, published=0)
         self.last_error = ""
         self._dropped_at_last_report = 0
         self._diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", RELIABLE_QOS)
         # Steady time: diagnostics keep flowing when use_sim_time is set and /clock is paused.
         self.create_timer(DIAGNOSTICS_PERIOD_S, self.publish_diagnostics, clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    def _declare_overrides(self) -> None:
+        """Declare every parameter given (file or ``-p``). rcl hands an empty list (``[]``) over
+        untyped, which rclpy cannot declare statically typed: it is declared dynamically typed."""
+        for name, param in self._parameter_overrides.items():
+            if not self.has_parameter(name):
+                self.declare_parameter(name, param.value, ParameterDescriptor(dynamic_typing=param.value is None))
 
     def parameter_mapping(self) -> dict:
         """The node's own parameters as a nested mapping (dotted names → groups, arrays → lists)."""
@@ -48,7 +59,9 @@ class LandingNode(Node):
             if name in ROS_PARAMETERS:
                 continue
             value = param.value
-            if isinstance(value, array.array):
+            if value is None:  # an empty list, declared untyped (see _declare_overrides)
+                value = []
+            elif isinstance(value, array.array):
                 value = list(value)
             *groups, leaf = name.split(".")
             level = nested
@@ -133,10 +146,14 @@ def run_node(factory, args=None, run=None) -> int:
     """Initialise rclpy, build the node, run it until shutdown; the body of every node's ``main()``.
 
     ``run(node, executor) -> int`` replaces the default spin (the bag player plays and returns).
-    A :class:`ConfigError` while building the node is a start-up failure: logged, exit code 2.
+    ROS arguments rcl cannot parse (a missing or malformed parameter file, an unknown argument) and
+    a :class:`ConfigError` while building the node are start-up failures: logged, exit code 2.
     Ctrl-C / SIGTERM end the node cleanly with exit code 0.
     """
-    rclpy.init(args=args)
+    try:
+        rclpy.init(args=args)
+    except RuntimeError as exc:  # rclpy's RCLError and UnknownROSArgsError
+        return _cannot_start(exc)
     executor = SingleThreadedExecutor()
     node = None
     try:
@@ -147,15 +164,28 @@ def run_node(factory, args=None, run=None) -> int:
         executor.spin()
         return 0
     except ConfigError as exc:
-        print(f"[FATAL] cannot start: {exc}", file=sys.stderr, flush=True)
-        return 2
-    except (KeyboardInterrupt, ExternalShutdownException):
+        return _cannot_start(exc)
+    except SHUTDOWN_ERRORS as exc:
+        if not stopped_by_shutdown(exc):
+            raise
         return 0
     finally:
         executor.shutdown()
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+
+
+def stopped_by_shutdown(exc: BaseException, context=None) -> bool:
+    """Whether ``exc`` is how Ctrl-C / SIGTERM end a node: rclpy shuts the context down at once,
+    so a callback that publishes afterwards raises RCLError (a RuntimeError) out of the executor."""
+    return isinstance(exc, (KeyboardInterrupt, ExternalShutdownException)) or (
+        isinstance(exc, RuntimeError) and not rclpy.ok(context=context))
+
+
+def _cannot_start(exc: Exception) -> int:
+    print(f"[FATAL] cannot start: {exc}", file=sys.stderr, flush=True)
+    return 2
 
 
 def _flatten(mapping: dict, prefix: str = ""):

@@ -29,7 +29,6 @@ from pathlib import Path
 import numpy as np
 import rclpy
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
-from rclpy.executors import ExternalShutdownException
 
 from ..config import ConfigError
 from ..evaluation import (
@@ -43,7 +42,7 @@ from ..evaluation import (
 )
 from ..evaluation.consistency import coverage_by_depth, format_coverage
 from ..sim import Poses, write_pose_csv
-from .base import LandingNode, run_node, stamp_ns
+from .base import SHUTDOWN_ERRORS, LandingNode, run_node, stamp_ns, stopped_by_shutdown
 from .poses import pose_to_numpy
 from .qos import RELIABLE_QOS
 
@@ -160,8 +159,9 @@ def run_until_done(node: EvaluatorNode, executor) -> int:
     try:
         while rclpy.ok(context=node.context) and not node.done():
             executor.spin_once(timeout_sec=SPIN_S)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+    except SHUTDOWN_ERRORS as exc:
+        if not stopped_by_shutdown(exc, node.context):
+            raise
     node.write()
     return 0
 
