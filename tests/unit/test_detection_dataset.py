@@ -299,3 +299,19 @@ def test_landing_frames_need_a_simulator_family_and_the_scenario_camera(tmp_path
                         banks_per_family=1, landing_fraction=1.0)
     with pytest.raises(ValueError, match="camera_info must be the same"):
         generate(cfg, tmp_path / "d", progress=False)
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (1, 300), (2, 3)])
+def test_a_user_image_of_a_pixel_or_two_still_gives_a_background(tmp_path, shape):
+    """Its crop keeps at least one pixel a side (it was empty, and cv2.resize failed mid-dataset)."""
+    from uav_landing_vision.detection.dataset import BackgroundSource
+
+    camera = CameraModel(64, 36, np.array([[60.0, 0, 32.0], [0, 60.0, 18.0], [0, 0, 1]]))
+    save_camera_info_yaml(camera, tmp_path / "cam.yaml")
+    (tmp_path / "images").mkdir()
+    cv2.imwrite(str(tmp_path / "images" / "tiny.png"), np.full((*shape, 3), (10, 20, 30), np.uint8))  # BGR
+    cfg = DatasetConfig(camera_info=str(tmp_path / "cam.yaml"), families=("images",), image_dir=str(tmp_path / "images"))
+    source = BackgroundSource(camera, cfg)
+    for seed in range(20):
+        background = source.draw(np.random.default_rng(seed), seed)
+        assert background.shape == (36, 64, 3) and (background == (30, 20, 10)).all()

@@ -85,3 +85,24 @@ def test_the_time_per_frame_is_that_of_the_detector_as_configured(tmp_path, monk
     monkeypatch.setattr(evaluation.time, "perf_counter", lambda: clock["now"])
     r = evaluate_bag(tmp_path / "bag", DetectorConfig(score_threshold=0.5), tmp_path / "out.json", progress=False)
     assert r["ms_per_frame"] == pytest.approx(5.0)
+
+
+def _brute_force_ap(scores, tp, n_gt):
+    """VOC all-point AP from first principles: the PR point of every threshold, then at each
+    recall reached the best precision at that recall or beyond."""
+    points = [(tp[scores >= t].sum() / n_gt, tp[scores >= t].mean()) for t in scores]
+    recalls = sorted({r for r, _ in points})
+    best = [max(p for r, p in points if r >= level) for level in recalls]
+    return sum((hi - lo) * p for lo, hi, p in zip([0.0] + recalls[:-1], recalls, best))
+
+
+def test_average_precision_matches_a_brute_force_oracle():
+    from uav_landing_vision.detection.evaluation import average_precision
+
+    rng = np.random.default_rng(0)
+    for _ in range(300):
+        n = int(rng.integers(1, 15))
+        scores, tp = rng.permutation(n) / n + 0.01, rng.random(n) < 0.5  # distinct scores
+        n_gt = int(tp.sum() + rng.integers(0, 3))
+        if n_gt:
+            assert average_precision(scores, tp, n_gt)[0] == pytest.approx(_brute_force_ap(scores, tp, n_gt), abs=1e-12)

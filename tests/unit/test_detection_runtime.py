@@ -4,7 +4,10 @@ import cv2
 import numpy as np
 import pytest
 
+from uav_landing_vision.cli import main
 from uav_landing_vision.detection.detector import (
+    Detector,
+    DetectorConfig,
     PAD_VALUE,
     Detections,
     box_iou,
@@ -153,3 +156,63 @@ def test_letterbox_can_repeat_the_border_instead_of_grey():
 def test_bad_images_are_rejected_with_a_clear_error(image, message):
     with pytest.raises(ValueError, match=message):
         check_image(image)
+
+
+def test_nms_matches_opencv_on_random_boxes_with_ties_and_duplicates():
+    """cv2.dnn.NMSBoxes as the oracle: same boxes kept, same order (ties: lower index first)."""
+    rng = np.random.default_rng(1)
+    for k in range(300):
+        n = int(rng.integers(0, 30))
+        xy = rng.uniform(0, 100, (n, 2))
+        boxes = np.hstack([xy, xy + rng.uniform(0.5, 40, (n, 2))])
+        if k % 3 == 0:
+            boxes[1::2] = boxes[0::2][: len(boxes[1::2])]  # exact duplicates
+        scores = (rng.integers(1, 5, n) / 5 if k % 2 else rng.uniform(0.01, 1, n)).astype(np.float32)
+        iou = float(rng.choice([0.3, 0.45, 0.7, 1.0]))
+        xywh = [[float(x0), float(y0), float(x1 - x0), float(y1 - y0)] for x0, y0, x1, y1 in boxes]
+        expected = np.array(cv2.dnn.NMSBoxes(xywh, scores.tolist(), 0.0, iou), np.int64).reshape(-1)
+        np.testing.assert_array_equal(nms(boxes, scores, iou), expected)
+
+
+@pytest.mark.parametrize("grow", [float("nan"), float("inf")])
+def test_config_refuses_a_search_window_growth_that_is_not_finite(grow):
+    """A NaN or infinite growth would pass the config and then fail every windowed frame."""
+    with pytest.raises(ValueError, match="window_grow"):
+        DetectorConfig(window_grow=grow)
+
+
+def test_a_file_that_is_not_an_onnx_model_is_a_clear_error(tmp_path):
+    from uav_landing_vision.detection.verifier import BoxVerifier
+
+    junk = tmp_path / "junk.onnx"
+    junk.write_text("image_width: 640\n")
+    with pytest.raises(ValueError, match=r"junk\.onnx: not an ONNX model onnxruntime can load"):
+        Detector(DetectorConfig(model=str(junk)))
+    with pytest.raises(ValueError, match=r"junk\.onnx: not an ONNX model onnxruntime can load"):
+        BoxVerifier(str(junk))
+    (tmp_path / "data").mkdir()
+    (tmp_path / "data" / "dataset.json").write_text('{"images": 1}')
+    with pytest.raises(SystemExit, match=r"^uav-landing train-verifier: .*junk\.onnx: not an ONNX model"):
+        main(["train-verifier", "--data", str(tmp_path / "data"), "--detector", str(junk),
+              "--out", str(tmp_path / "run")])
+
+
+def test_a_model_with_other_metadata_or_outputs_is_refused(tmp_path):
+    import onnx
+    from onnx import TensorProto, helper
+
+    graph = helper.make_graph([helper.make_node("Identity", ["images"], ["p8"])], "g",
+                              [helper.make_tensor_value_info("images", TensorProto.FLOAT, [1, 3, 32, 32])],
+                              [helper.make_tensor_value_info("p8", TensorProto.FLOAT, [1, 3, 32, 32])])
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)])
+    model.ir_version = 8
+    for key, value in {"strides": "8", "input_width": "32", "input_height": "32"}.items():
+        prop = model.metadata_props.add()
+        prop.key, prop.value = key, value
+    onnx.save(model, str(tmp_path / "odd.onnx"))
+    with pytest.raises(ValueError, match="not a detector exported by this project"):
+        Detector(DetectorConfig(model=str(tmp_path / "odd.onnx")))
+    model.metadata_props[0].value = "[8, 16]"  # two strides, one output
+    onnx.save(model, str(tmp_path / "two.onnx"))
+    with pytest.raises(ValueError, match=r"1 outputs for strides \(8, 16\)"):
+        Detector(DetectorConfig(model=str(tmp_path / "two.onnx")))

@@ -257,3 +257,60 @@ def test_fine_tuning_starts_from_an_exported_model(tmp_path):
     with pytest.raises(ValueError, match="no convolution"):
         other = UavDetectorNet(width=24, blocks=(1, 1, 1))
         weights_from_onnx(path, other)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"input_size": (0, 0)}, "input_size"),
+    ({"input_size": (-64, 128)}, "input_size"),
+    ({"crop": (64, 0)}, "crop"),
+    ({"lr": float("nan")}, "lr"),
+    ({"lr": float("inf")}, "lr"),
+    ({"weight_decay": -1.0}, "weight_decay"),
+    ({"max_images": -3}, "max_images"),
+])
+def test_training_settings_that_cannot_train_are_refused(kwargs, message):
+    """An empty input (it trained, then failed in the export with a traceback), a crop with one
+    zero side (a convolution error), a NaN rate (a silently NaN network), a negative count."""
+    from uav_landing_vision.detection.train import TrainConfig
+
+    with pytest.raises(ValueError, match=message):
+        TrainConfig(**kwargs)
+
+
+def test_train_detector_refuses_an_empty_input_size_before_reading_data(tmp_path):
+    from uav_landing_vision.cli import main
+
+    with pytest.raises(SystemExit, match="^uav-landing train-detector: input_size"):
+        main(["train-detector", "--data", str(tmp_path / "none"), "--out", str(tmp_path / "run"), "--input", "0x0"])
+
+
+def test_a_resumed_run_ends_as_the_uninterrupted_one(tmp_path, monkeypatch):
+    from uav_landing_vision.camera import CameraModel, save_camera_info_yaml
+    from uav_landing_vision.detection import train as training
+    from uav_landing_vision.detection.dataset import DatasetConfig, generate
+
+    camera = CameraModel(192, 108, np.array([[165.0, 0, 96.0], [0, 165.0, 54.0], [0, 0, 1]]))
+    save_camera_info_yaml(camera, tmp_path / "cam.yaml")
+    data = str(tmp_path / "data")
+    generate(DatasetConfig(count=6, seed=1, camera_info=str(tmp_path / "cam.yaml"), families=("normal",),
+                           banks_per_family=1), data, progress=False)
+    settings = dict(data=(data,), epochs=3, batch=2, input_size=(192, 128), crop=(96, 64), width=8, threads=1)
+    whole = training.TrainConfig(out=str(tmp_path / "whole"), **settings)
+    split = training.TrainConfig(out=str(tmp_path / "split"), **settings)
+    training.train(whole, progress=False)
+    validate, calls = training.validate, []
+
+    def interrupted(*args):  # Ctrl-C in epoch 2's validation: last.pt holds epoch 1
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return validate(*args)
+
+    monkeypatch.setattr(training, "validate", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        training.train(split, progress=False)
+    monkeypatch.setattr(training, "validate", validate)
+    training.train(split, resume=True, progress=False)
+    a, b = training.load_checkpoint(whole), training.load_checkpoint(split)
+    assert all(torch.equal(a["net"][k], b["net"][k]) for k in a["net"])
+    assert [e["loss"] for e in a["log"]["epochs"]] == [e["loss"] for e in b["log"]["epochs"]]

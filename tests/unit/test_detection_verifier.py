@@ -147,3 +147,22 @@ def test_a_model_that_is_not_a_verifier_is_refused(datasets):
     _, detector, _ = datasets
     with pytest.raises(ValueError, match="not a box verifier"):
         BoxVerifier(detector)
+
+
+@pytest.mark.parametrize("kwargs", [{"lr": float("nan")}, {"lr": float("inf")}, {"weight_decay": float("nan")}])
+def test_verifier_settings_that_cannot_train_are_refused(kwargs):
+    from uav_landing_vision.detection.verifier_train import VerifierTrainConfig
+
+    with pytest.raises(ValueError, match="lr"):
+        VerifierTrainConfig(**kwargs)
+
+
+def test_fewer_training_crops_than_a_batch_is_a_clear_error(datasets, tmp_path):
+    """Not torch's 'Expected positive integer total_steps, but got 0'."""
+    from uav_landing_vision.detection.verifier_train import VerifierTrainConfig, train_verifier
+
+    folders, detector, _ = datasets
+    cfg = VerifierTrainConfig(data=folders, detector=detector, out=str(tmp_path / "run"), batch=100_000,
+                              width=4, threads=1, workers=1)
+    with pytest.raises(ValueError, match=r"only \d+ training crops, fewer than one batch of 100000"):
+        train_verifier(cfg, progress=False)

@@ -293,7 +293,8 @@ class BackgroundSource:
         cw = min(w, h * aspect) * rng.uniform(0.4, 1.0)
         ch = cw / aspect
         x0, y0 = rng.uniform(0, w - cw), rng.uniform(0, h - ch)
-        crop = bgr[int(y0) : int(y0 + ch), int(x0) : int(x0 + cw)]
+        # at least one pixel a side (an image of a pixel or two would give an empty crop)
+        crop = bgr[int(y0) : max(int(y0 + ch), int(y0) + 1), int(x0) : max(int(x0 + cw), int(x0) + 1)]
         if rng.random() < 0.5:
             crop = crop[:, ::-1]
         crop = cv2.resize(crop, (self.camera.width, self.camera.height), interpolation=cv2.INTER_AREA)

@@ -43,8 +43,10 @@ class DetectorConfig:
             raise ValueError("score_threshold must be in (0, 1) and nms_iou in (0, 1]")
         if not 0.0 <= self.verifier_threshold < 1.0:
             raise ValueError("verifier_threshold must be in [0, 1)")
-        if self.max_detections < 1 or self.threads < 1 or self.window_grow < 1.0 or self.window_min_px < 32:
-            raise ValueError("need max_detections ≥ 1, threads ≥ 1, window_grow ≥ 1, window_min_px ≥ 32")
+        if not (np.isfinite(self.window_grow) and self.window_grow >= 1.0):
+            raise ValueError(f"window_grow must be finite and ≥ 1, got {self.window_grow}")
+        if self.max_detections < 1 or self.threads < 1 or self.window_min_px < 32:
+            raise ValueError("need max_detections ≥ 1, threads ≥ 1, window_min_px ≥ 32")
 
 
 class Detections(NamedTuple):
@@ -220,7 +222,10 @@ def onnx_session(model, threads: int):
     options = ort.SessionOptions()
     options.intra_op_num_threads = threads
     options.inter_op_num_threads = 1
-    return path, ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+    try:
+        return path, ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+    except Exception as exc:  # onnxruntime's own exception types (InvalidProtobuf, Fail, ...)
+        raise ValueError(f"{path}: not an ONNX model onnxruntime can load ({exc})") from exc
 
 
 class Detector:
@@ -233,8 +238,11 @@ class Detector:
         try:
             self.strides = tuple(int(s) for s in json.loads(meta["strides"]))
             self.input_size = (int(meta["input_width"]), int(meta["input_height"]))
-        except (KeyError, ValueError) as exc:
+        except (KeyError, ValueError, TypeError) as exc:
             raise ValueError(f"{path}: not a detector exported by this project (metadata {exc})") from exc
+        if len(self.session.get_outputs()) != len(self.strides):
+            raise ValueError(f"{path}: not a detector exported by this project "
+                             f"({len(self.session.get_outputs())} outputs for strides {self.strides})")
         self.input_name = self.session.get_inputs()[0].name
         self.verifier = None
         if config.verifier:

@@ -47,9 +47,15 @@ class TrainConfig:
     init: str = ""
 
     def __post_init__(self):
-        if (self.epochs < 1 or self.batch < 1 or self.lr <= 0 or self.width < 8 or self.threads < 1
-                or self.loader_workers < 0):
-            raise ValueError("need epochs ≥ 1, batch ≥ 1, lr > 0, width ≥ 8, threads ≥ 1, loader_workers ≥ 0")
+        if (self.epochs < 1 or self.batch < 1 or self.width < 8 or self.threads < 1 or self.loader_workers < 0
+                or self.max_images < 0):
+            raise ValueError("need epochs ≥ 1, batch ≥ 1, width ≥ 8, threads ≥ 1, loader_workers ≥ 0 "
+                             "and max_images ≥ 0")
+        if not (np.isfinite(self.lr) and self.lr > 0 and np.isfinite(self.weight_decay) and self.weight_decay >= 0):
+            raise ValueError(f"need a finite lr > 0 and weight_decay ≥ 0, got {self.lr} and {self.weight_decay}")
+        if min(self.input_size) <= 0 or (min(self.crop) <= 0 and tuple(self.crop) != (0, 0)):
+            raise ValueError(f"input_size must be positive and crop positive or (0, 0), got {self.input_size} "
+                             f"and {self.crop}")
         if any(s % max(STRIDES) for s in self.input_size + self.crop):
             raise ValueError(f"input_size and crop must be multiples of {max(STRIDES)}")
         if not self.data:

@@ -49,8 +49,10 @@ class VerifierTrainConfig:
     workers: int = 2  # mining processes
 
     def __post_init__(self):
-        if self.epochs < 1 or self.batch < 2 or self.lr <= 0 or self.width < 4 or self.threads < 1 or self.workers < 1:
-            raise ValueError("need epochs ≥ 1, batch ≥ 2, lr > 0, width ≥ 4, threads ≥ 1, workers ≥ 1")
+        if self.epochs < 1 or self.batch < 2 or self.width < 4 or self.threads < 1 or self.workers < 1:
+            raise ValueError("need epochs ≥ 1, batch ≥ 2, width ≥ 4, threads ≥ 1, workers ≥ 1")
+        if not (np.isfinite(self.lr) and self.lr > 0 and np.isfinite(self.weight_decay) and self.weight_decay >= 0):
+            raise ValueError(f"need a finite lr > 0 and weight_decay ≥ 0, got {self.lr} and {self.weight_decay}")
         if not 0 < self.mine_threshold < 1 or not 0 <= self.negative_iou < self.positive_iou <= 1:
             raise ValueError("need 0 < mine_threshold < 1 and 0 ≤ negative_iou < positive_iou ≤ 1")
         if not self.data:
@@ -181,6 +183,8 @@ def train_verifier(cfg: VerifierTrainConfig, resume: bool = False, progress: boo
     crops, labels = mined["crops"], (mined["labels"] == 1).astype(np.float32)
     if not len(train_idx) or labels[train_idx].min() == labels[train_idx].max():
         raise ValueError("the mined training crops need both UAV and non-UAV boxes")
+    if len(train_idx) < cfg.batch:
+        raise ValueError(f"only {len(train_idx)} training crops, fewer than one batch of {cfg.batch}; lower the batch")
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(cfg.threads)
     net = BoxVerifierNet(cfg.width)
