@@ -1,6 +1,7 @@
 """The moderngl renderer against an OpenCV rasterisation oracle and its own contracts."""
 
 import cv2
+import moderngl
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -228,6 +229,26 @@ def test_a_refused_renderer_leaves_no_gl_objects(camera, mesh, monkeypatch, limi
         monkeypatch.setattr(ctx, name, record)
     with pytest.raises(ValueError, match=f"exceeds .*{limit}"):
         Renderer(camera, mesh, tile=64, max_batch=512)
+    assert [type(obj).__name__ for obj in made if type(obj.mglo).__name__ != "InvalidObject"] == []
+
+
+@pytest.mark.parametrize("failing", ["texture", "vertex_array"])
+def test_a_renderer_failing_partway_releases_what_it_made(camera, mesh, monkeypatch, failing):
+    """Out of GPU memory halfway through the constructor (the tracker node catches moderngl.Error
+    and retries at the next camera_info): the objects made before the failure are released."""
+    ctx = gl_context()
+    made = []
+    for name in ("program", "buffer", "vertex_array", "renderbuffer", "framebuffer", "texture"):
+        def record(*args, _make=getattr(ctx, name), _name=name, **kwargs):
+            if _name == failing and len(made) > 8:
+                raise moderngl.Error("out of memory")
+            made.append(_make(*args, **kwargs))
+            return made[-1]
+
+        monkeypatch.setattr(ctx, name, record)
+    with pytest.raises(moderngl.Error, match="out of memory"):
+        Renderer(camera, mesh, tile=64, max_batch=16)
+    assert len(made) > 8
     assert [type(obj).__name__ for obj in made if type(obj.mglo).__name__ != "InvalidObject"] == []
 
 

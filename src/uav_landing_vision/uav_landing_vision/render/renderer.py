@@ -34,6 +34,11 @@ class SilhouetteBatch:
     visible: np.ndarray
 
 
+# Every GL object a renderer makes, framebuffers (with their attachments) last; see Renderer.release.
+_GL_OBJECTS = ("_sil_vao", "_full_vao", "_shade_vao", "_bg_vao", "_vbo", "_ibo", "_inst_buf", "_one_buf", "_bg_tex",
+               "_sil_prog", "_shade_prog", "_bg_prog", "_atlas", "_full", "_rgba")
+
+
 class Renderer:
     """Renders one mesh through one camera; all renderers share the process's GL context."""
 
@@ -56,7 +61,15 @@ class Renderer:
         _check_target_size(ctx, "silhouette atlas", (aw, ah),
                            f"lower max_batch ({self.max_batch}: the particles per draw) or tile ({self.tile})")
         _check_target_size(ctx, "image", size, "use a smaller camera resolution", texture=True)
+        self._msaa: dict[int, moderngl.Framebuffer] = {}
+        try:
+            self._make_gl_objects(ctx, (aw, ah), size)
+        except Exception:  # e.g. moderngl.Error, out of GPU memory: free what was made before it
+            self.release()
+            raise
 
+    def _make_gl_objects(self, ctx, atlas_size: tuple[int, int], size: tuple[int, int]) -> None:
+        mesh, (aw, ah) = self.mesh, atlas_size
         vert = shader_source("project.vert")
         self._sil_prog = ctx.program(vertex_shader=vert, fragment_shader=shader_source("silhouette.frag"))
         self._shade_prog = ctx.program(vertex_shader=vert, fragment_shader=shader_source("shaded.frag"))
@@ -101,15 +114,16 @@ class Renderer:
         self._bg_tex = ctx.texture(size, 3, dtype="f1", alignment=1)
         self._rgba = ctx.framebuffer(color_attachments=[ctx.renderbuffer(size, components=4, dtype="f1")])
         self._rgba_buf = np.zeros((self.height, self.width, 4), dtype=np.uint8)
-        self._msaa: dict[int, moderngl.Framebuffer] = {}
 
     def release(self) -> None:
-        """Free this renderer's GL objects (moderngl frees none when they are garbage collected);
-        the renderer is unusable afterwards. The shared context stays."""
-        framebuffers = [self._atlas, self._full, self._rgba, *self._msaa.values()]
-        for obj in (self._sil_vao, self._full_vao, self._shade_vao, self._bg_vao, self._vbo, self._ibo,
-                    self._inst_buf, self._one_buf, self._bg_tex, self._sil_prog, self._shade_prog, self._bg_prog):
-            obj.release()
+        """Free this renderer's GL objects (moderngl frees none when they are garbage collected),
+        also those of one whose construction failed partway; the renderer is unusable afterwards.
+        The shared context stays."""
+        made = [getattr(self, name, None) for name in _GL_OBJECTS]
+        framebuffers = [fbo for fbo in made[-3:] if fbo is not None] + list(self._msaa.values())
+        for obj in made[:-3]:
+            if obj is not None:
+                obj.release()
         for fbo in framebuffers:
             attachments = [*fbo.color_attachments, fbo.depth_attachment]
             fbo.release()
