@@ -7,6 +7,7 @@ import pytest
 
 from uav_landing_vision.evaluation import (
     STAT_KEYS,
+    TRANSLATION_COLUMNS,
     SummaryError,
     align,
     error_statistics,
@@ -14,6 +15,7 @@ from uav_landing_vision.evaluation import (
     format_table,
     load_summary,
     make_summary,
+    plot_errors,
     pose_errors,
     save_summary,
     score,
@@ -165,6 +167,13 @@ def test_tables_csv_and_plots(tmp_path):
         assert (tmp_path / name).stat().st_size > 0
     header = (tmp_path / "translation_error.csv").read_text().splitlines()[0]
     assert header.split(",")[:3] == ["statistic", "C4N2 Euclidean", "C4N2 X"]
+
+
+def test_absurd_errors_are_left_out_of_the_plots(tmp_path):
+    """Errors of ±1e308 (a diverged estimate) made matplotlib fail, and the evaluator lost its report."""
+    err = {"C4N2": {col: np.array([1e308, -1e308, 1.0]) for col in TRANSLATION_COLUMNS}}
+    plot_errors(tmp_path / "t.png", err, TRANSLATION_COLUMNS, "m")
+    assert (tmp_path / "t.png").stat().st_size > 0
 
 
 def test_median_errors_by_depth_hand_made():

@@ -21,6 +21,7 @@ from .statistics import ROTATION_COLUMNS, ROW_NAMES, STAT_KEYS, TRANSLATION_COLU
 
 AXIS_LABELS = {"euclidean": "Euclidean", "x": "X", "y": "Y", "z": "Z",
                "geodesic": "Geodesic", "alpha": "α", "beta": "β", "gamma": "γ"}
+PLOT_LIMIT = 1e6  # errors (m or deg) beyond it are left out of the plots, not the tables
 
 
 class SummaryError(ValueError):
@@ -101,9 +102,12 @@ def plot_errors(path, errors_by_variant: dict[str, dict[str, np.ndarray]], colum
 
     fig, axes = plt.subplots(1, len(columns), figsize=(4.2 * len(columns), 3.2), squeeze=False)
     for ax, col in zip(axes[0], columns):
+        off_chart = 0
         for name, err in errors_by_variant.items():
-            ax.plot(np.arange(len(err[col])), err[col], lw=0.9, label=name)
-        ax.set_title(AXIS_LABELS[col])
+            beyond = np.abs(err[col]) > PLOT_LIMIT  # matplotlib cannot lay out axes out to ~1e308
+            off_chart += int(beyond.sum())
+            ax.plot(np.arange(len(err[col])), np.where(beyond, np.nan, err[col]), lw=0.9, label=name)
+        ax.set_title(AXIS_LABELS[col] + (f" ({off_chart} beyond ±{PLOT_LIMIT:g} not drawn)" if off_chart else ""))
         ax.set_xlabel("frame")
         ax.set_ylabel(f"error [{unit}]")
         ax.grid(True, alpha=0.3)
