@@ -87,6 +87,31 @@ def test_the_time_per_frame_is_that_of_the_detector_as_configured(tmp_path, monk
     assert r["ms_per_frame"] == pytest.approx(5.0)
 
 
+def test_the_operating_point_is_that_of_the_detector_as_configured(tmp_path, monkeypatch):
+    """The curve's run keeps up to 20 boxes a frame, the configured detector max_detections: the
+    precision and false positives at the operating point are those of the boxes the graph gets."""
+    from uav_landing_vision.detection import detector as runtime
+    from uav_landing_vision.sim import load_scenario, simulate
+
+    simulate(load_scenario("normal"), tmp_path / "bag", frames=2, progress=False)
+
+    class FiveBoxes:  # five boxes off the UAV above the threshold, of which the limit keeps the best
+        def __init__(self, config):
+            self.config = config
+
+        def detect(self, image):
+            n = min(5, self.config.max_detections)
+            boxes = np.array([[20.0 * i, 0.0, 20.0 * i + 10.0, 10.0] for i in range(n)], np.float32).reshape(-1, 4)
+            return runtime.Detections(boxes, np.linspace(0.9, 0.6, 5, dtype=np.float32)[:n])
+
+    monkeypatch.setattr(runtime, "Detector", FiveBoxes)
+    config = DetectorConfig(score_threshold=0.5, max_detections=2)
+    r = evaluate_bag(tmp_path / "bag", config, tmp_path / "out.json", progress=False)
+    assert r["false_positives_per_100_frames"] == 200.0  # 2 boxes a frame, not the curve's 5
+    assert r["best_box_false_positives_per_100_frames"] == 100.0
+    assert len(r["curve"]["thresholds"]) == 10  # the curve still sees every box
+
+
 def _brute_force_ap(scores, tp, n_gt):
     """VOC all-point AP from first principles: the PR point of every threshold, then at each
     recall reached the best precision at that recall or beyond."""

@@ -57,7 +57,9 @@ def summarise(frames: list[dict], threshold: float) -> dict:
     low threshold, so the whole curve is seen). Frames labelled with ``tie_margin`` and
     ``runner_up`` (:func:`label_frame`) add ``truth_near_ties`` (margin < ``NEAR_TIE_MARGIN``),
     ``runner_up_misses`` (frames whose UAV is missed at the threshold while a kept box matches
-    the runner-up oriented box's ROI by IoU ≥ 0.5) and those frames' margins."""
+    the runner-up oriented box's ROI by IoU ≥ 0.5) and those frames' margins. Frames with
+    ``kept_boxes`` and ``kept_scores`` (the detector as configured: its box limit and verifier)
+    take the operating point's figures from those, not from the boxes above the threshold."""
     scores, tps, widths, hits = [], [], [], []
     fp_at, tp_at, fp_best, near_ties, runner_up_margins = 0, 0, 0, 0, []
     for f in frames:
@@ -65,16 +67,16 @@ def summarise(frames: list[dict], threshold: float) -> dict:
         scores.append(f["scores"])
         tps.append(tp)
         keep = f["scores"] >= threshold
-        tp_kept, matched = match_frame(f["boxes"][keep], f["scores"][keep], f["gt"])
-        fp_at += int(keep.sum() - matched.sum())
+        kept, kept_scores = f.get("kept_boxes", f["boxes"][keep]), f.get("kept_scores", f["scores"][keep])
+        tp_kept, matched = match_frame(kept, kept_scores, f["gt"])
+        fp_at += int(len(kept) - matched.sum())
         tp_at += int(matched.sum())
-        if keep.any():  # the box the graph uses: the frame's best (matched first, so its own TP flag)
-            fp_best += int(not tp_kept[np.argmax(f["scores"][keep])])
+        if len(kept):  # the box the graph uses: the frame's best (matched first, so its own TP flag)
+            fp_best += int(not tp_kept[np.argmax(kept_scores)])
         widths.extend((f["gt"][:, 2] - f["gt"][:, 0]).tolist())
         hits.extend(matched.tolist())
         if f.get("runner_up") is not None:
             near_ties += int(f["tie_margin"] < NEAR_TIE_MARGIN)
-            kept = f["boxes"][keep]
             if not matched.all() and len(kept) and box_iou(kept, f["runner_up"][None]).max() >= 0.5:
                 runner_up_margins.append(f["tie_margin"])
     n_gt = len(widths)
@@ -159,7 +161,7 @@ def evaluate_bag(bag, config, json_path, png_path=None, progress: bool = True, t
     mesh = fixed_wing_mesh("high")
     # scored down to 0.01 for the curve, or to the operating threshold when that is lower
     detector = Detector(replace(config, score_threshold=min(0.01, config.score_threshold), max_detections=20))
-    timed = Detector(config)  # ms per frame: the detector as configured (threshold, limit, verifier)
+    timed = Detector(config)  # the operating point and ms per frame: as configured (threshold, limit, verifier)
     frames = []
     for stamp, raw in tqdm(iter_frames(bag), desc="eval-detector", unit="frame", total=len(truth),
                            disable=not progress):
@@ -170,8 +172,9 @@ def evaluate_bag(bag, config, json_path, png_path=None, progress: bool = True, t
         frame = label_frame(outline, rect.width, rect.height, truth_box)
         det = detector.detect(image)
         t0 = time.perf_counter()
-        timed.detect(image)
-        frame.update(boxes=det.boxes, scores=det.scores, ms=1000.0 * (time.perf_counter() - t0))
+        kept = timed.detect(image)
+        frame.update(boxes=det.boxes, scores=det.scores, kept_boxes=kept.boxes, kept_scores=kept.scores,
+                     ms=1000.0 * (time.perf_counter() - t0))
         frames.append(frame)
     result = summarise(frames, config.score_threshold)
     result.update(bag=str(bag), model=str(config.model), verifier=str(config.verifier),
