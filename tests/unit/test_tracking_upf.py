@@ -137,6 +137,37 @@ def test_a_frame_not_after_the_last_is_refused_before_anything_changes(renderer,
     assert tracker.step(frame, 0, hypotheses(8)).has_pose
 
 
+@pytest.mark.parametrize("bad", ["frame", "hypotheses"])
+def test_a_refused_frame_leaves_no_trace(renderer, frame, bad):
+    """A frame refused for a bad image or bad hypotheses changes nothing: its stamp may come
+    again, and the next frame is predicted from the last tracked one, as if it never came."""
+    dt_ns = 34_000_000
+    steps = [(0, hypotheses(100)), (dt_ns, hypotheses(101)), (3 * dt_ns, hypotheses(102))]
+    plain, refused = (Tracker(TrackerConfig.from_variant("C4N2", particles=40, boosted=10), CAMERA, renderer)
+                      for _ in range(2))
+    expected = [plain.step(frame, s, h) for s, h in steps]
+    refused.step(frame, *steps[0])
+    refused.step(frame, *steps[1])
+    nan_hyps = Hyps(hypotheses(9).quats, np.full((60, 3), np.nan))
+    args = (frame[:120], hypotheses(9)) if bad == "frame" else (frame, nan_hyps)
+    with pytest.raises(ValueError, match="shape|finite"):
+        refused.step(args[0], 2 * dt_ns, args[1])
+    last = refused.step(frame, *steps[2])
+    np.testing.assert_array_equal(last.position, expected[-1].position)
+    np.testing.assert_array_equal(last.quat, expected[-1].quat)
+
+
+def test_a_best_particle_at_zero_depth_does_not_break_the_depth_gate(renderer, frame):
+    """A track whose best particle sits at depth 0 (hypotheses on the camera centre, all scoring
+    0) gates out the next frame's boosted depth instead of dividing by zero."""
+    tracker = Tracker(TrackerConfig.from_variant("C4N0", particles=40, boosted=10), CAMERA, renderer)
+    on_centre = hypotheses(1)
+    on_centre.positions = on_centre.positions * np.array([1.0, 1.0, 0.0])
+    assert not tracker.step(frame, 0, on_centre).has_pose and tracker.particles.pos[0, 2] == 0.0
+    result = tracker.step(frame, 1, hypotheses(2))
+    assert tracker._anchor is None and result.state == TrackState.ACQUIRING
+
+
 def test_a_lost_track_still_refuses_a_frame_not_after_the_last(renderer, frame):
     """Losing the track (here: an empty sky) is no new time-line; only reset() starts one."""
     track = TrackStateConfig(acquire_likelihood=0.1, lost_likelihood=0.01, lost_frames=1)
@@ -362,6 +393,8 @@ def test_variant_parsing_and_configuration():
                 {"rotation_prior_sigma_deg": -1.0}, {"rotation_prior_floor": 0.0}, {"rotation_prior_max_m": 0.0}):
         with pytest.raises(ValueError):
             TrackerConfig(**bad)
+    with pytest.raises(ValueError, match="seed must be a non-negative integer, got -1"):
+        TrackerConfig(seed=-1)
 
 
 def test_shipped_tracker_yaml_is_the_default(tmp_path):

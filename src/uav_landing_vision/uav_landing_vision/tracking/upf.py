@@ -131,6 +131,8 @@ class TrackerConfig:
             raise ValueError(f"optimiser must be one of {sorted(OPTIMISERS)}, got {self.optimiser!r}")
         floors = (self.covariance_floor_m, *self.covariance_floor_deg, *self.covariance_range_fraction,
                   self.covariance_coast_fraction, self.covariance_coast_deg)
+        if not (isinstance(self.seed, (int, np.integer)) and self.seed >= 0):
+            raise ValueError(f"seed must be a non-negative integer, got {self.seed!r}")
         if self.tile < 16 or not all(f >= 0 for f in floors):
             raise ValueError("need tile >= 16 and non-negative covariance floors, range fractions and coasting terms")
         bands = np.asarray(self.covariance_bands_m, float)
@@ -359,18 +361,18 @@ class Tracker:
     def step(self, frame: np.ndarray, stamp_ns: int, hypotheses=None) -> TrackResult:
         """Track one rectified RGB frame. ``hypotheses``: boosted poses, best first, with
         ``quats (k, 4)`` and ``positions (k, 3)`` (e.g. :class:`boosting.Hypotheses`), or None.
-        Stamps must increase until the next :meth:`reset`: an earlier or repeated one raises
-        ValueError before anything changes."""
+        Stamps must increase until the next :meth:`reset`: an earlier or repeated one, a bad
+        frame or bad hypotheses raise ValueError before the track or the last stamp changes."""
         if self._last_stamp_ns is not None and stamp_ns <= self._last_stamp_ns:
             raise ValueError(f"frame stamp {stamp_ns} ns is not after the last one ({self._last_stamp_ns} ns); "
                              "reset() the tracker for a new time-line")
-        steps = prediction_steps(None if self._last_stamp_ns is None else stamp_ns - self._last_stamp_ns,
-                                 self.config.motion.dt)
-        self._last_stamp_ns = int(stamp_ns)
         clock = _Clock()
         self.likelihood.prepare(frame)
         clock.lap("prepare")
         new = _hypothesis_set(hypotheses, self.hypotheses_needed())
+        steps = prediction_steps(None if self._last_stamp_ns is None else stamp_ns - self._last_stamp_ns,
+                                 self.config.motion.dt)
+        self._last_stamp_ns = int(stamp_ns)
         self._coasting = 0 if new is not None else self._coasting + 1
         self._anchor = self._boosted_depth(new)
         mixed = self._mix(new, steps)
@@ -394,7 +396,8 @@ class Tracker:
     def _boosted_depth(self, new: ParticleSet | None) -> float | None:
         """This frame's anchor z_b of the depth prior: the boosted hypotheses' median depth, or None
         (no prior) beyond ``depth_prior_max_m`` or, with ``depth_prior_gate``, when it disagrees
-        with the last frame's best particle's depth by more than that fraction."""
+        with the last frame's best particle's depth by more than that fraction (always when that
+        depth is not positive)."""
         cfg = self.config
         if new is None or cfg.depth_prior_sigma <= 0:
             return None
@@ -403,7 +406,7 @@ class Tracker:
             return None
         if cfg.depth_prior_gate > 0 and self.particles is not None:
             last = float(self.particles.pos[0, 2])
-            if abs(anchor / last - 1.0) > cfg.depth_prior_gate:
+            if not last > 0.0 or abs(anchor / last - 1.0) > cfg.depth_prior_gate:
                 return None
         return anchor
 
