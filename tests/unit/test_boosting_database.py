@@ -118,6 +118,54 @@ def test_small_built_database_round_trips(tmp_path, camera, mesh):
     np.testing.assert_allclose(box, db.obbs[7], rtol=1e-5, atol=1e-3)
 
 
+def test_silhouettes_leaving_the_image_are_refused_not_stored_clipped(camera, mesh):
+    """At 1.5 m the 1.8 m span of the model exceeds the 720 px image height in some poses: their
+    boxes would be clipped by the image border, so their area A^i and the depth (4.5) wrong."""
+    from uav_landing_vision.render import Renderer
+
+    renderer = Renderer(camera, mesh)
+    quats = sample_orientations(30, (90, 90, 90), np.random.default_rng(3))
+    masks = [renderer.silhouette_full(q, [0.0, 0.0, 1.5]) for q in quats]
+    assert any(m[[0, -1]].any() or m[:, [0, -1]].any() for m in masks)  # the oracle: some touch the border
+    with pytest.raises(ValueError, match="leaves the 1280x720 image at Z = 1.5 m.*larger distance"):
+        build_database(camera, mesh, DatabaseConfig(count=30, distance=1.5, seed=3), progress=False)
+
+
+@pytest.mark.parametrize("kwargs", [{"count": 0}, {"distance": 0.0}, {"distance": np.nan}, {"distance": np.inf},
+                                    {"half_range_deg": (90.0, 0.0, 90.0)}, {"half_range_deg": (90.0, 90.0)}])
+def test_database_config_validation(kwargs):
+    with pytest.raises(ValueError):
+        DatabaseConfig(**kwargs)
+
+
+@pytest.mark.parametrize("distance", [0.0, -4.0, np.nan, np.inf])
+def test_database_distance_must_be_positive_and_finite(tmp_path, camera, synthetic, distance):
+    with pytest.raises(DatabaseError, match="distance"):
+        PoseDatabase(synthetic.quats, synthetic.obbs, distance=distance, camera=camera, model="m")
+    z = dict(np.load(synthetic.save(tmp_path / "ok.npz")))
+    z["distance"] = np.float64(distance)
+    np.savez(tmp_path / "bad.npz", **z)
+    with pytest.raises(DatabaseError, match="distance"):
+        PoseDatabase.load(tmp_path / "bad.npz")
+
+
+def test_truncated_or_damaged_files_are_clear_errors(tmp_path, synthetic):
+    data = synthetic.save(tmp_path / "ok.npz").read_bytes()
+    (tmp_path / "cut.npz").write_bytes(data[: len(data) // 2])
+    with pytest.raises(DatabaseError, match="corrupt"):
+        PoseDatabase.load(tmp_path / "cut.npz")
+    flipped = bytearray(data)
+    flipped[len(data) // 2] ^= 0xFF
+    (tmp_path / "flip.npz").write_bytes(bytes(flipped))
+    with pytest.raises(DatabaseError, match="corrupt"):
+        PoseDatabase.load(tmp_path / "flip.npz")
+    z = dict(np.load(tmp_path / "ok.npz"))
+    z["format_version"] = np.int32(2)
+    np.savez(tmp_path / "v2.npz", **z)
+    with pytest.raises(DatabaseError, match="format 2, expected 1"):
+        PoseDatabase.load(tmp_path / "v2.npz")
+
+
 def test_missing_corrupt_or_mismatched_files_are_clear_errors(tmp_path, camera, synthetic):
     with pytest.raises(DatabaseError, match="not found"):
         PoseDatabase.load(tmp_path / "none.npz")

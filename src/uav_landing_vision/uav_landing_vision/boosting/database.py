@@ -47,8 +47,8 @@ class DatabaseConfig:
     def __post_init__(self):
         if self.count < 1:
             raise ValueError(f"database count must be positive, got {self.count}")
-        if not self.distance > 0:
-            raise ValueError(f"database distance must be positive, got {self.distance}")
+        if not (np.isfinite(self.distance) and self.distance > 0):
+            raise ValueError(f"database distance must be positive and finite, got {self.distance}")
         if len(self.half_range_deg) != 3 or not all(0 < a <= 180 for a in self.half_range_deg):
             raise ValueError(f"half_range_deg must be three angles in (0, 180], got {self.half_range_deg}")
 
@@ -94,8 +94,10 @@ class PoseDatabase:
         norms = np.linalg.norm(self.quats, axis=1)
         if not np.all(np.abs(norms - 1.0) <= 1e-3):  # NaN fails too
             raise DatabaseError("database rotations must be unit quaternions")
-        self.areas = (self.obbs[:, 3] * self.obbs[:, 4]).astype(np.float32)
         self.distance = float(distance)
+        if not (np.isfinite(self.distance) and self.distance > 0):
+            raise DatabaseError(f"database distance must be positive and finite, got {self.distance}")
+        self.areas = (self.obbs[:, 3] * self.obbs[:, 4]).astype(np.float32)
         self.camera = camera
         self.model = str(model)
         self.half_range_deg = tuple(float(a) for a in half_range_deg)
@@ -195,7 +197,8 @@ def build_database(camera: CameraModel, mesh, config: DatabaseConfig = DatabaseC
                    command: str = "", progress: bool = True) -> PoseDatabase:
     """Render ``config.count`` orientations at ``(0, 0, distance)`` and box each full-resolution
     silhouette (4.2). Entries whose silhouette is empty or degenerate (e.g. a flat model seen
-    edge-on) are dropped."""
+    edge-on) are dropped; a silhouette that reaches the image border (its box would be clipped,
+    its area A^i in (4.5) too small) is a ValueError."""
     from ..render import Renderer
 
     camera = camera.rectified()
@@ -204,7 +207,13 @@ def build_database(camera: CameraModel, mesh, config: DatabaseConfig = DatabaseC
     renderer = Renderer(camera, mesh)
     obbs = np.full((config.count, 5), np.nan)
     for i in _progress(config.count, progress):
-        box = obb_from_mask(renderer.silhouette_full(quats[i], trans))
+        mask = renderer.silhouette_full(quats[i], trans)
+        if mask[[0, -1]].any() or mask[:, [0, -1]].any():
+            raise ValueError(
+                f"the model's silhouette (entry {i}) leaves the {camera.width}x{camera.height} image at "
+                f"Z = {config.distance:g} m; build the database at a larger distance (--distance)"
+            )
+        box = obb_from_mask(mask)
         if box is not None:
             obbs[i] = box
     keep = np.all(np.isfinite(obbs), axis=1)

@@ -46,8 +46,10 @@ class HypothesisConfig:
     def __post_init__(self):
         if not 0.0 <= self.min_roi_cover <= 1.0:
             raise ValueError(f"min_roi_cover must be in [0, 1], got {self.min_roi_cover}")
-        if not (self.roi_margin >= 0 and self.roi_pad_px >= 0):
-            raise ValueError(f"roi_margin and roi_pad_px must be non-negative, got {self.roi_margin}, {self.roi_pad_px}")
+        if not all(np.isfinite(v) and v >= 0 for v in (self.roi_margin, self.roi_pad_px)):
+            raise ValueError(f"roi_margin and roi_pad_px must be finite and non-negative, got {self.roi_margin}, {self.roi_pad_px}")
+        if not all(isinstance(n, (int, np.integer)) and not isinstance(n, bool) for n in (self.particles, self.kept)):
+            raise ValueError(f"particles M and kept M0 must be integers, got {self.particles!r}, {self.kept!r}")
         if self.particles < 1 or not 0 <= self.kept < self.particles:
             raise ValueError(f"need particles M >= 1 and 0 <= kept M0 < M, got M={self.particles}, M0={self.kept}")
         if not self.aspect_weight > 0:
