@@ -239,6 +239,25 @@ def test_track_states_lost_reinitialise_acquire_track(renderer, frame):
     assert again.state == TrackState.ACQUIRING and again.has_pose
 
 
+def test_a_track_coasting_without_hypotheses_is_no_longer_vouched_for(renderer, frame):
+    """The UAV leaves a sky-and-sea frame: the particles settle on the horizon, which the colour
+    metric scores above lost_likelihood, so only the coasting limit ends TRACKING; hypotheses
+    must come back before the track is TRACKING again."""
+    track = TrackStateConfig(acquire_likelihood=0.1, acquire_frames=2, lost_likelihood=0.01, max_coast_frames=4)
+    tracker = Tracker(TrackerConfig.from_variant("C4N0", particles=40, boosted=10, track=track), CAMERA, renderer)
+    assert [tracker.step(frame, k, hypotheses(k)).state for k in range(3)][-1] == TrackState.TRACKING
+    horizon = SKY.copy()
+    horizon[118:] = (40, 70, 90)  # sea below a horizon through the UAV's last position
+    gone = [tracker.step(horizon, k, None) for k in range(3, 11)]
+    assert min(r.best_likelihood for r in gone) > track.lost_likelihood  # the horizon scores: no LOST
+    assert [r.state for r in gone] == [TrackState.TRACKING] * 3 + [TrackState.ACQUIRING] * 5
+    assert all(r.has_pose for r in gone)  # the estimate is still published, as unconfirmed
+    back = [tracker.step(frame, k, hypotheses(k)).state for k in range(11, 14)]
+    assert back == [TrackState.ACQUIRING, TrackState.TRACKING, TrackState.TRACKING]
+    with pytest.raises(ValueError, match="max_coast_frames"):
+        TrackStateConfig(max_coast_frames=-1)
+
+
 def test_prediction_carries_the_track_through_a_frame_without_hypotheses(renderer, frame):
     tracker, _ = run(renderer, frame, "C4N1", frames=3)
     res = tracker.step(frame, 3, None)
@@ -271,6 +290,10 @@ def test_track_monitor_transitions():
     assert [m.update(v) for v in (0.6, 0.3, 0.6, 0.6)] == [TrackState.ACQUIRING] * 3 + [TrackState.TRACKING]
     assert [m.update(v) for v in (0.05, 0.05, 0.2, 0.05, 0.05)] == [TrackState.TRACKING] * 5  # interrupted
     assert m.update(0.0) == TrackState.LOST
+    m.initialised()
+    assert [m.update(0.6, coasting=c) for c in (0, 0, 15, 16, 0, 0)] == [  # max_coast_frames 15 by default
+        TrackState.ACQUIRING, TrackState.TRACKING, TrackState.ACQUIRING, TrackState.ACQUIRING,
+        TrackState.ACQUIRING, TrackState.TRACKING]
     with pytest.raises(ValueError):
         TrackStateConfig(acquire_likelihood=0.1, lost_likelihood=0.2)
 

@@ -5,6 +5,10 @@ Rules, checked once per frame on the best particle's likelihood ``b``:
 
 - after (re)initialisation from pose boosting the track is ACQUIRING;
 - ACQUIRING → TRACKING after ``acquire_frames`` consecutive frames with ``b ≥ acquire_likelihood``;
+- TRACKING → ACQUIRING once the track has coasted ``max_coast_frames`` frames in a row without
+  boosted hypotheses (0: never), and no frame counts toward TRACKING until hypotheses return:
+  a scene without the UAV can score high (a horizon edge under the colour metric), so without
+  fresh evidence from the detector and boosting the estimate is not vouched for;
 - any state → LOST after ``lost_frames`` consecutive frames with ``b < lost_likelihood``, or at
   once when there is nothing to track (no particles and no hypotheses). LOST drops the
   particles; the next frame with hypotheses re-initialises the filter (ACQUIRING again).
@@ -30,12 +34,15 @@ class TrackStateConfig:
     acquire_frames: int = 3
     lost_likelihood: float = 0.08
     lost_frames: int = 5
+    max_coast_frames: int = 15
 
     def __post_init__(self):
         if not 0.0 <= self.lost_likelihood < self.acquire_likelihood:
             raise ValueError("track_state: need 0 <= lost_likelihood < acquire_likelihood")
         if self.acquire_frames < 1 or self.lost_frames < 1:
             raise ValueError("track_state: acquire_frames and lost_frames must be at least 1")
+        if self.max_coast_frames < 0:
+            raise ValueError(f"track_state: max_coast_frames must be non-negative, got {self.max_coast_frames}")
 
 
 class TrackMonitor:
@@ -55,13 +62,17 @@ class TrackMonitor:
         self.state, self._good, self._bad = TrackState.LOST, 0, 0
         return self.state
 
-    def update(self, best_likelihood: float) -> TrackState:
-        """The state after a frame whose best particle scored ``best_likelihood``."""
+    def update(self, best_likelihood: float, coasting: int = 0) -> TrackState:
+        """The state after a frame whose best particle scored ``best_likelihood``, the track
+        having coasted ``coasting`` frames in a row without boosted hypotheses."""
         cfg = self.config
+        unconfirmed = 0 < cfg.max_coast_frames <= coasting
         self._bad = self._bad + 1 if best_likelihood < cfg.lost_likelihood else 0
-        self._good = self._good + 1 if best_likelihood >= cfg.acquire_likelihood else 0
+        self._good = self._good + 1 if best_likelihood >= cfg.acquire_likelihood and not unconfirmed else 0
         if self._bad >= cfg.lost_frames:
             return self.lost()
+        if unconfirmed and self.state == TrackState.TRACKING:
+            self.state = TrackState.ACQUIRING
         if self.state == TrackState.ACQUIRING and self._good >= cfg.acquire_frames:
             self.state = TrackState.TRACKING
         return self.state

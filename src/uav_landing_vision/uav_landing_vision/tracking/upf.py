@@ -517,7 +517,7 @@ class Tracker:
         order = np.argsort(-particles.weight, kind="stable")
         particles = particles.take(order)
         best_w = float(particles.weight[0] / self._prior(particles.take([0]))[0])  # the likelihood alone
-        state = self.monitor.update(best_w)
+        state = self.monitor.update(best_w, self._coasting)
         if self.filters is not None:
             self.filters.take(particles.state["slot"])
             self.filters.recentre(particles.pos, particles.quat)
