@@ -19,6 +19,7 @@ from test_node_common import SMALL_CAMERA, frame_entries, rgb_frame, ros, write_
 
 from uav_landing_msgs.msg import TrackerStatus
 from uav_landing_vision.gcs.mavlink import open_link
+from uav_landing_vision import graph as graph_module
 from uav_landing_vision.graph import GRAPH_NODES, node_command
 from uav_landing_vision.nodes.base import stamp_ns
 from uav_landing_vision.nodes.image import image_to_numpy
@@ -173,3 +174,21 @@ def test_every_graph_node_has_a_module_and_a_parameter_file():
         assert cmd[1:3] == ["-m", f"uav_landing_vision.nodes.{name}"]
         assert Path(cmd[-1]).is_file(), cmd[-1]
         assert (REPO / "src" / "uav_landing_vision" / "uav_landing_vision" / "nodes" / f"{name}.py").is_file()
+
+
+def _fake_nodes(monkeypatch, scripts: dict) -> None:
+    """Each graph node replaced by ``python -c <its script>`` (no ROS)."""
+    monkeypatch.setattr(graph_module, "node_command", lambda name, config_dir, overrides=(): [sys.executable, "-c", scripts[name]])
+
+
+@pytest.mark.parametrize("code, expected", [(0, 0), (3, 1)], ids=["clean", "error"])
+def test_a_node_that_exits_on_its_own_stops_the_graph_failing_only_on_an_error(monkeypatch, capsys, tmp_path, code, expected):
+    """E.g. an evaluator done after ``frames``: the others get SIGINT; exit code 0 is no failure."""
+    _fake_nodes(monkeypatch, {"undistort": "import time; time.sleep(60)", "evaluator": f"import time; time.sleep(0.5); raise SystemExit({code})"})
+    graph = graph_module.Graph(["undistort", "evaluator"], tmp_path, {"undistort": [], "evaluator": []}, dict(os.environ), stop_timeout=5.0)
+    assert graph.run() == expected
+    output = capsys.readouterr().out
+    assert f"evaluator exited with code {code}; stopping the graph" in output
+    assert graph.procs["undistort"].returncode == -signal.SIGINT and graph.procs["evaluator"].returncode == code
+    assert ("all nodes stopped cleanly" in output) == (code == 0)
+    assert (f"failed: evaluator (exit code {code})" in output) == (code != 0)

@@ -228,7 +228,7 @@ class Graph:
                     self._stop_requested.wait(self.drain_s)
                     return []
                 self._say(f"{name} exited with code {code}; stopping the graph")
-                return [name]
+                return [] if code in _CLEAN_EXIT else [name]
             self._stop_requested.wait(_POLL_S)
         self._say("stop requested; stopping the graph")
         return []
