@@ -1,6 +1,7 @@
 """``uav-landing demo`` (what ``make demo`` runs): a simulated landing through the node graph.
 
-1. Simulate the landing of a shipped scenario into ``OUT/bags/`` (kept: later runs reuse it).
+1. Simulate the landing of a shipped scenario into ``OUT/bags/`` (kept: later runs of the same
+   scenario values reuse it).
 2. Run the whole graph (:data:`~uav_landing_vision.graph.GRAPH_NODES`, one process per node,
    over DDS on its own ``ROS_DOMAIN_ID``) with ``bag_player`` paced on ``uav/tracker_status``,
    so every frame is tracked whatever the machine's speed.
@@ -82,7 +83,10 @@ def graph_overrides(bag: Path, report_dir: Path, sequence: str) -> dict:
 
 
 def simulated_bag(folder: Path, scenario: str, seed: int | None, frames: int | None) -> Path:
-    """The bag of ``scenario`` (simulated into ``folder`` unless it is there already)."""
+    """The bag of ``scenario`` (simulated into ``folder`` unless it is there already, from the
+    same scenario values: ``<bag>.scenario`` records them)."""
+    from dataclasses import replace
+
     from .sim.config import ScenarioError, load_scenario
     from .sim.simulate import simulate
 
@@ -92,10 +96,14 @@ def simulated_bag(folder: Path, scenario: str, seed: int | None, frames: int | N
         raise SystemExit(f"uav-landing demo: {exc}") from exc
     seed = sc.seed if seed is None else seed
     bag = folder / f"{sc.name}_seed{seed}" if frames is None else folder / f"{sc.name}_seed{seed}_{frames}frames"
-    if (bag / "metadata.yaml").is_file():  # simulate() makes the folder only once the bag is complete
+    recipe, record = f"{replace(sc, seed=seed)!r}\n", bag.with_name(bag.name + ".scenario")
+    # simulate() makes the folder only once the bag is complete
+    if (bag / "metadata.yaml").is_file() and record.is_file() and record.read_text() == recipe:
         print(f"[demo] using the simulated landing {bag}", flush=True)
         return bag
+    shutil.rmtree(bag, ignore_errors=True)  # an edited scenario (or one not recorded): simulate it again
     result = simulate(sc, bag, seed=seed, frames=frames)
+    record.write_text(recipe)
     print(f"[demo] simulated {result.frames} frames in {result.seconds:.0f} s: {bag}", flush=True)
     return bag
 
