@@ -119,3 +119,17 @@ def test_setup_installs_the_launch_file_parameter_files_models_and_shaders(tmp_p
     assert {p.name for p in (PACKAGE_DIR / "models").iterdir()} <= {p.name for p in (share / "models").iterdir()}
     shaders = {p.name for p in (PACKAGE_DIR / "uav_landing_vision" / "render" / "shaders").iterdir()}
     assert shaders and shaders == {p.name for p in (tmp_path / "lib" / "uav_landing_vision" / "render" / "shaders").iterdir()}
+
+
+def test_compose_replay_runs_every_node_but_the_player_on_the_bags_clock():
+    """As the launch file's ``bag:=``: the documented replay sets ``USE_SIM_TIME=true``, which every
+    node service but the player passes as ``use_sim_time`` (on the wall clock the GCS bridge
+    finds every replayed pose stale); the live graph keeps the wall clock."""
+    docker = PACKAGE_DIR.parents[1] / "docker"
+    services = yaml.safe_load((docker / "compose.yaml").read_text())["services"]
+    assert set(services) == set(GRAPH_NODES)
+    option = "-p use_sim_time:=${USE_SIM_TIME:-false}"
+    assert [n for n, s in services.items() if (option in s["command"]) != (n != PLAYER)] == []
+    assert "clock" not in services[PLAYER]["command"]  # the player publishes /clock (bag_player.yaml)
+    replay = [line for line in (docker / "README.md").read_text().splitlines() if "--profile replay up" in line]
+    assert replay and all("USE_SIM_TIME=true " in line for line in replay)
