@@ -303,6 +303,23 @@ def test_a_loss_between_two_ticks_goes_around_even_if_the_track_is_back(bridge):
     assert bridge.tick(5.2).sent == ("ODOMETRY",)  # the next tick sends the new track's pose
 
 
+def test_a_track_restart_between_two_ticks_goes_around_even_if_the_track_is_back(bridge):
+    """A restart of the tracker's track (new calibration, a frame it could not step) says
+    ACQUIRING for two frames, 67 ms at 30 fps: whether LAND goes around must not depend on
+    whether a 10 Hz tick fell between those statuses, nor may the new track's poses extend the
+    old one's run towards NO_RETURN."""
+    fly(bridge, approach(), t_end=(120.0 - 14.0) / 20.0)  # LAND at 14 m, a full run of in-cone poses
+    assert bridge.stage == Stage.LAND
+    for k, state in enumerate([TRACKER_ACQUIRING, TRACKER_ACQUIRING, TRACKER_TRACKING]):
+        t = 5.3 + (k + 1) / 30
+        assert feed(bridge, t, on_axis(range_at(t)), state=state)
+    sent = len(bridge.sender.poses)
+    result = bridge.tick(5.4 + 0.03)
+    assert result.guidance.stage == Stage.GO_AROUND and "ODOMETRY" not in result.sent
+    assert len(bridge.sender.poses) == sent and math.isnan(result.guidance.range)
+    assert bridge.tick(5.5).sent == ("ODOMETRY",) and bridge.sender.poses[-1][0] == pytest.approx(5.4)
+
+
 def test_a_pose_is_sent_only_once_a_status_of_its_frame_says_tracking(bridge):
     """The tracker publishes each frame's pose before its status; after a silent restart of its
     track (new calibration, new time-line) that status says ACQUIRING, while the latest one the

@@ -42,9 +42,10 @@ class GcsBridge:
     frame's status after its pose, and after a silent restart of its track that status says
     ACQUIRING); until then the pose before it stays the one in use. Stale or
     lost → no position message at all and, in LAND, GO_AROUND at the next tick (within 0.5 s,
-    checked by the config); a LOST reported between two ticks counts at the next one even if the
-    tracker is back to TRACKING by then. A clock that jumps back behind the held pose drops it
-    too, and restarts the heartbeat, the send rate and the go-around hold on the new time-line.
+    checked by the config); a LOST or ACQUIRING (a restarted or coasting track) reported between
+    two ticks counts at the next one even if the tracker is back to TRACKING by then. A clock that
+    jumps back behind the held pose drops it too, and restarts the heartbeat, the send rate and
+    the go-around hold on the new time-line.
     Stage changes go to the GCS as STATUSTEXT.
     """
 
@@ -55,7 +56,7 @@ class GcsBridge:
         self._machine = StageMachine(config.cone, config.go_around_hold_s)
         self._tracker_state = TRACKER_LOST
         self._status_stamp = -math.inf
-        self._lost_since_tick = False
+        self._untracked_since_tick = False  # a status other than TRACKING since the last tick
         self._pose: LandingPose | None = None  # the newest pose confirmed by a TRACKING status
         self._stamp = -math.inf
         self._pose_sent = False
@@ -117,10 +118,10 @@ class GcsBridge:
         if not math.isfinite(stamp_s):
             raise ValueError(f"tracker status stamp must be finite, got {stamp_s!r}")
         self._tracker_state, self._status_stamp = state, stamp_s
+        self._untracked_since_tick |= state != TRACKER_TRACKING
         if state == TRACKER_LOST:
             self._pose, self._stamp = None, -math.inf
             self._pending, self._pending_stamp = None, -math.inf
-            self._lost_since_tick = True
         self._confirm()
 
     def reset(self) -> Stage:
@@ -140,10 +141,10 @@ class GcsBridge:
         fresh = (
             self._pose is not None
             and self._tracker_state == TRACKER_TRACKING
-            and not self._lost_since_tick
+            and not self._untracked_since_tick
             and now_s - self._stamp <= self._cfg.stale_timeout_s
         )
-        self._lost_since_tick = False
+        self._untracked_since_tick = False
         geometry = cone_geometry(self._pose.position, self._cfg.cone) if fresh else None
         before = self._machine.stage
         stage = self._machine.update(now_s, geometry, self._stamp)
