@@ -164,6 +164,36 @@ def test_malformed_poses_and_states_are_dropped(ros, mavlink_receiver):
     assert all(math.isnan(g.range) for g in rig.guidance) and rig.guidance[-1].stage == LandingGuidance.LOITER
 
 
+def test_poses_are_refused_while_a_second_tracker_publishes(ros, mavlink_receiver):
+    """Two trackers on the graph (a second graph on the domain, a bag replayed with its recorded
+    uav/pose): the bridge cannot tell whose status vouches for which pose, and would guide on
+    both estimates in turn. It sends nothing until one publisher of each is left."""
+    rig = Rig(ros, mavlink_receiver.port.getsockname()[1])
+    other = ros.probe.create_publisher(PoseWithCovarianceStamped, "uav/pose", RELIABLE_QOS)
+    assert ros.spin_until(lambda: rig.node.count_publishers("uav/pose") == 2), "discovery"
+
+    def both_publish():
+        for pub, x in ((rig.pose_pub, 0.5), (other, 3.0)):
+            msg = rig.pose(x=x)
+            pub.publish(msg)
+            rig.status_pub.publish(TrackerStatus(header=msg.header, state=TrackerStatus.TRACKING))
+        return rig.node.counters["dropped"] >= 20
+
+    assert ros.spin_until(both_publish)
+    assert "2 publishers of uav/pose" in rig.node.last_error
+    assert all(math.isnan(g.range) for g in rig.guidance) and rig.guidance[-1].stage == LandingGuidance.LOITER
+    assert mavlink_receiver.recv_match(type="ODOMETRY", blocking=True, timeout=0.3) is None
+    ros.probe.destroy_publisher(other)  # one tracker left: its tracked poses are taken again
+
+    def tracked():
+        msg = rig.pose()
+        rig.pose_pub.publish(msg)
+        rig.status_pub.publish(TrackerStatus(header=msg.header, state=TrackerStatus.TRACKING))
+        return any(math.isfinite(g.range) for g in rig.guidance)
+
+    assert ros.spin_until(tracked)
+
+
 @pytest.mark.parametrize(
     "kwargs, message",
     [

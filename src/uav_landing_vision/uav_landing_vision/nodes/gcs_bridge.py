@@ -7,7 +7,10 @@ and publishes its ``LandingGuidance`` (frame ``landing``: x bow, y starboard, z 
 the net), stamped with its pose's header stamp as received (the core's float seconds cannot hold
 an epoch stamp to the nanosecond) or, without a fresh pose, the tick's time. Parameters: ``config/gcs_bridge.yaml``, validated into ``gcs.GcsBridgeConfig``.
 A malformed pose (NaN, non-unit quaternion, bad covariance) or an unknown tracker state is
-logged and dropped; no position is sent for it. The service ``~/reset`` (std_srvs/Trigger) is the
+logged and dropped; no position is sent for it. So are every pose and status while
+``uav/pose`` or ``uav/tracker_status`` has more than one publisher (a second tracker or graph on
+the domain, a bag replayed with its recorded poses): a status could then vouch for another
+tracker's pose. The service ``~/reset`` (std_srvs/Trigger) is the
 operator's reset of the stage machine to LOITER (NO_RETURN holds until it, e.g. after recovery
 from the net).
 """
@@ -37,8 +40,10 @@ class GcsBridgeNode(LandingNode):
         except (OSError, ValueError) as exc:
             raise ConfigError(f"mavlink: cannot open '{self.config.mavlink.connection}': {exc}") from exc
         self._guidance = self.create_publisher(LandingGuidance, "uav/landing_guidance", RELIABLE_QOS)
-        self.create_subscription(PoseWithCovarianceStamped, "uav/pose", self._on_pose, RELIABLE_QOS)
-        self.create_subscription(TrackerStatus, "uav/tracker_status", self._on_status, RELIABLE_QOS)
+        self._inputs = (
+            self.create_subscription(PoseWithCovarianceStamped, "uav/pose", self._on_pose, RELIABLE_QOS),
+            self.create_subscription(TrackerStatus, "uav/tracker_status", self._on_status, RELIABLE_QOS),
+        )
         self.create_service(Trigger, "~/reset", self._on_reset)
         self.create_timer(1.0 / self.config.mavlink.rate_hz, self._tick)
         self.get_logger().info(f"MAVLink {self.config.mavlink.messages} to {self.config.mavlink.connection}")
@@ -46,8 +51,19 @@ class GcsBridgeNode(LandingNode):
     def _now_s(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9
 
+    def _second_tracker(self) -> str:
+        """Why the tracker's topics cannot be trusted (more than one publisher), or ""."""
+        for sub in self._inputs:
+            count = self.count_publishers(sub.topic_name)
+            if count > 1:
+                return f"{count} publishers of {sub.topic_name.lstrip('/')}: a second tracker, or a bag that replays it?"
+        return ""
+
     def _on_pose(self, msg: PoseWithCovarianceStamped) -> None:
         self.counters["received"] += 1
+        if conflict := self._second_tracker():
+            self.drop(f"uav/pose: {conflict}")
+            return
         p, q = msg.pose.pose.position, msg.pose.pose.orientation
         try:
             taken = self._bridge.on_pose(
@@ -66,6 +82,9 @@ class GcsBridgeNode(LandingNode):
 
     def _on_status(self, msg: TrackerStatus) -> None:
         self.counters["status_received"] += 1
+        if conflict := self._second_tracker():
+            self.drop(f"uav/tracker_status: {conflict}")
+            return
         try:
             self._bridge.on_tracker_state(msg.state, stamp_ns(msg.header.stamp) * 1e-9)
         except ValueError as exc:
