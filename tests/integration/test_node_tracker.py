@@ -221,6 +221,25 @@ def test_a_replay_started_again_restarts_the_track(ros, generator):
     assert rig.status_of(3).state == TrackerStatus.ACQUIRING  # the track restarted
 
 
+def test_frames_resuming_after_a_gap_longer_than_the_prediction_restart_the_track(ros, generator):
+    """The camera stalls for 5 s: the core predicts at most MAX_PREDICTION_STEPS Δt (~2 s) ahead,
+    so the carried particles are not of the resumed frame's time. Its status must not say
+    TRACKING on them (the GCS bridge would guide on that pose): the track restarts."""
+    rig = Rig(ros)
+    rig.send_info()
+    states = [rig.send(k, frame_msg(k), boosted_msg(generator, k)).state for k in range(5)]
+    assert states[-1] == TrackerStatus.TRACKING, states
+
+    def restamped(msg, k):  # frame k's pixels at a later frame's stamp
+        msg.header.stamp.sec, msg.header.stamp.nanosec = stamp(k)
+        return msg
+
+    status = rig.send(160, restamped(frame_msg(5), 160))  # 5.1 s on; no hypotheses: tracked by prediction
+    assert status is not None and status.state == TrackerStatus.LOST and rig.pose_of(160) is None
+    status = rig.send(161, restamped(frame_msg(6), 161), restamped(boosted_msg(generator, 6), 161))
+    assert status.state == TrackerStatus.ACQUIRING and ros.spin_until(lambda: rig.pose_of(161) is not None)
+
+
 def test_a_calibration_it_cannot_use_is_dropped_and_the_last_one_kept(ros, generator, monkeypatch):
     rig = Rig(ros)
     rig.send_info()

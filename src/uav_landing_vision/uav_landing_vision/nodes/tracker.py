@@ -18,7 +18,10 @@ image waiting) is skipped and counted (``skipped``), so a camera faster than the
 no backlog of ever older frames (the motion model then predicts over the gap). Frames due before the first
 calibration are held (``node.cache_size`` of them) and tracked once it comes. An image stamped more than
 2 s before the last tracked frame starts a new time-line (a replay or clock started again): the
-track restarts, where every later frame would otherwise be dropped as out of order. Hypotheses without
+track restarts, where every later frame would otherwise be dropped as out of order. So does a frame
+tracked longer after the last one than the core's prediction reaches (``MAX_PREDICTION_STEPS`` Δt,
+~2 s: a camera that stalled): its carried particles are not of that frame's time, and its status
+would say TRACKING on them. Hypotheses without
 an image, late ones and malformed ones (non-finite, non-unit quaternion: the frame is then
 tracked by prediction at once) are logged, counted and dropped. A frame the core cannot step
 with the current track (e.g. one started from finite but absurd hypotheses) restarts the track there.
@@ -48,7 +51,7 @@ from ..config import ConfigError
 from ..model import fixed_wing_mesh
 from ..render import Renderer
 from ..render.context import GLContextError, gl_context
-from ..tracking.upf import Tracker, TrackerConfig, render_batch
+from ..tracking.upf import MAX_PREDICTION_STEPS, Tracker, TrackerConfig, render_batch
 from .base import LandingNode, run_node, stamp_ns
 from .calibration import Calibration
 from .image import ImageError, image_to_rgb, numpy_to_image
@@ -208,6 +211,7 @@ class TrackerNode(LandingNode):
         if stamp <= self._last_stamp:  # a restart below must never track a frame out of order
             self.drop(f"frame stamped {stamp} ns is not after the last tracked frame ({self._last_stamp} ns)")
             return
+        self._restart_after_gap(tracker, stamp)
         try:
             result = tracker.step(frame, stamp, boosted)
         except ValueError as exc:  # a track the core cannot go on with (e.g. absurd hypotheses): start afresh
@@ -237,6 +241,15 @@ class TrackerNode(LandingNode):
         self.counters["tracked"] += 1
         if self._overlay_pub is not None:
             self._overlay_pub.publish(numpy_to_image(self._overlay(frame, result), "rgb8", header))
+
+    def _restart_after_gap(self, tracker: Tracker, stamp: int) -> None:
+        """Restart the track if ``stamp`` is further after the last tracked frame than the motion model predicts."""
+        dt = self.config.motion.dt
+        gap_s = (stamp - self._last_stamp) * 1e-9
+        if self._last_stamp >= 0 and tracker.particles is not None and round(gap_s / dt) > MAX_PREDICTION_STEPS:
+            self.get_logger().warning(f"frame stamped {stamp} ns comes {gap_s:.1f} s after the last tracked frame, beyond "
+                                      f"the {MAX_PREDICTION_STEPS * dt:.1f} s the motion model predicts: the track restarts")
+            tracker.reset()
 
     def _overlay(self, frame: np.ndarray, result) -> np.ndarray:
         """The frame with the outline of the model at the estimate (the plain frame without one)."""
