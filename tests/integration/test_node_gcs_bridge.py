@@ -112,6 +112,40 @@ def test_a_tracked_pose_gives_guidance_and_mavlink(ros, mavlink_receiver):
     assert rig.node.counters["dropped"] == 0
 
 
+def test_a_pose_is_vouched_for_only_by_a_tracking_status_of_its_own_frame(ros, mavlink_receiver):
+    """A frame's pose and status travel apart: a TRACKING status stamped with an earlier frame
+    or an ACQUIRING status of the pose's frame sends nothing to the GCS, however many fresh poses
+    come; a TRACKING status of the pose's frame does."""
+    rig = Rig(ros, mavlink_receiver.port.getsockname()[1])
+
+    def received():
+        return rig.node.counters["received"], rig.node.counters["status_received"]
+
+    def poses_with(state: int, lag_ns: int, count: int = 10) -> None:
+        for _ in range(count):
+            msg = rig.pose()
+            status = TrackerStatus(state=state)  # a header of its own: the pose's must not change
+            status.header.stamp.sec, status.header.stamp.nanosec = divmod(
+                msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec - lag_ns, 1_000_000_000)
+            before, seen = received(), len(rig.guidance)
+            rig.pose_pub.publish(msg)
+            rig.status_pub.publish(status)
+            assert ros.spin_until(lambda: all(n > b for n, b in zip(received(), before)) and len(rig.guidance) > seen)
+        assert rig.node.counters["stale_poses"] == 0  # every pose was fresh and taken, to wait for its status
+
+    poses_with(TrackerStatus.TRACKING, lag_ns=5_000_000_000)  # before every pose sent, whatever the order of arrival
+    poses_with(TrackerStatus.ACQUIRING, lag_ns=0)
+    assert all(math.isnan(g.range) for g in rig.guidance) and rig.guidance[-1].stage == LandingGuidance.LOITER
+    assert mavlink_receiver.recv_match(type="ODOMETRY", blocking=True, timeout=0.3) is None
+    assert rig.node.counters["dropped"] == 0
+
+    def tracked():
+        poses_with(TrackerStatus.TRACKING, lag_ns=0, count=1)
+        return any(math.isfinite(g.range) for g in rig.guidance)
+
+    assert ros.spin_until(tracked)
+
+
 def test_the_reset_service_returns_the_stage_machine_to_loiter(ros, mavlink_receiver):
     rig = Rig(ros, mavlink_receiver.port.getsockname()[1])
     client = ros.probe.create_client(Trigger, "/gcs_bridge/reset")

@@ -24,8 +24,8 @@ from uav_landing_vision.nodes.image import image_to_numpy
 from uav_landing_vision.nodes.poses import numpy_to_pose, pose_to_numpy
 from uav_landing_vision.nodes import tracker as tracker_node
 from uav_landing_vision.nodes.qos import IMAGE_QOS, RELIABLE_QOS
-from uav_landing_vision.nodes.tracker import TrackerNode
-from uav_landing_vision.tracking.upf import STAGES
+from uav_landing_vision.nodes.tracker import BoostedPoses, TrackerNode
+from uav_landing_vision.tracking.upf import STAGES, Tracker, load_tracker_config
 
 PARAMS = Path(__file__).parents[2] / "config" / "tracker.yaml"
 TIMEOUT_S = 0.3
@@ -95,10 +95,12 @@ def test_pose_converges_on_rendered_frames_with_boosted_hypotheses(ros, generato
     rig = Rig(ros, Parameter("node.overlay", value=True))
     rig.send_info()
     frames = 6
+    sent = []
     for k in range(frames):
         image, hyps = frame_msg(k), boosted_msg(generator, k)
         status = rig.send(k, *((image, hyps) if k % 2 else (hyps, image)))  # both orders of arrival
         assert status is not None and status.header == image.header
+        sent.append(hyps)
     assert rig.node.counters["without_hypotheses"] == 0 and rig.node.counters["dropped"] == 0
     assert ros.spin_until(lambda: len(rig.poses) == frames and len(rig.particles) == frames and len(rig.overlay) == frames)
     last = rig.poses[-1]
@@ -115,6 +117,20 @@ def test_pose_converges_on_rendered_frames_with_boosted_hypotheses(ros, generato
     assert 1.0 <= status.effective_particles <= M
     overlay = image_to_numpy(rig.overlay[-1])
     assert overlay.shape == (240, 320, 3) and (overlay == (0, 255, 0)).all(axis=2).sum() > 20  # outline drawn
+    # What reaches uav/pose is the core's result on the same frames and hypotheses, field by field.
+    core = Tracker(dataclasses.replace(load_tracker_config(PARAMS), particles=M, boosted=M - M0), CAMERA)
+    for k, hyps in enumerate(sent):
+        poses = [pose_to_numpy(p) for p in hyps.poses]
+        result = core.step(scene_frame(k), stamp_ns(hyps.header.stamp),
+                           BoostedPoses(np.array([q for _, q in poses]), np.array([p for p, _ in poses])))
+        published, status = rig.pose_of(k), rig.status_of(k)
+        assert (status.state, status.best_likelihood, status.effective_particles) == (  # float32 on the wire
+            result.state, np.float32(result.best_likelihood), np.float32(result.effective_particles))
+        np.testing.assert_array_equal(np.hstack(pose_to_numpy(published.pose.pose)),
+                                      np.hstack([result.position, result.quat]))
+        np.testing.assert_array_equal(np.array(published.pose.covariance).reshape(6, 6), result.covariance)
+        np.testing.assert_array_equal([np.hstack(pose_to_numpy(p)) for p in rig.particles[k].poses],
+                                      np.hstack([result.particles.pos, result.particles.quat]))
 
 
 def test_nothing_is_published_on_pose_without_an_estimate(ros, generator):

@@ -17,7 +17,7 @@ def test_every_subcommand_has_help(capsys):
 
 
 def test_demo_rejects_bad_frame_count():
-    with pytest.raises(SystemExit):
+    with pytest.raises(SystemExit, match="--frames must be at least 1"):
         main(["demo", "--frames", "0"])
 
 

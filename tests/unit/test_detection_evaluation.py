@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from uav_landing_vision.detection.detector import DetectorConfig
-from uav_landing_vision.detection.evaluation import evaluate_bag, label_frame, summarise
+from uav_landing_vision.detection.evaluation import evaluate_bag, label_frame, match_frame, summarise
 
 
 def test_unknown_truth_box_is_rejected_before_the_bag_is_opened(tmp_path):
@@ -131,3 +131,39 @@ def test_average_precision_matches_a_brute_force_oracle():
         n_gt = int(tp.sum() + rng.integers(0, 3))
         if n_gt:
             assert average_precision(scores, tp, n_gt)[0] == pytest.approx(_brute_force_ap(scores, tp, n_gt), abs=1e-12)
+
+
+def test_matching_is_greedy_by_score_one_detection_per_truth_and_iou_0_5_counts():
+    gt = np.array([[0.0, 0.0, 10.0, 10.0], [100.0, 100.0, 120.0, 110.0]])
+    # a duplicate of the first truth box, a box with IoU exactly 0.5 (100 / 200) with it, one
+    # with IoU 0.8 with it but scored lower, and one off both boxes
+    boxes = np.array([[0.0, 0.0, 10.0, 10.0], [0.0, 0.0, 10.0, 10.0], [0.0, 0.0, 10.0, 20.0],
+                      [0.0, 0.0, 10.0, 12.5], [50.0, 50.0, 60.0, 60.0]])
+    tp, matched = match_frame(boxes, np.array([0.9, 0.8, 0.7, 0.6, 0.95]), gt)
+    assert tp.tolist() == [True, False, False, False, False] and matched.tolist() == [True, False]
+    tp, matched = match_frame(boxes[3:1:-1], np.array([0.8, 0.9]), gt[:1])
+    assert tp.tolist() == [False, True]  # the better-scored box takes the truth, at IoU 0.5 exactly
+    assert match_frame(boxes[3:1:-1] + [0, 0, 0, 0.01], np.array([0.8, 0.9]), gt[:1])[0].tolist() == [True, False]
+
+
+def test_operating_point_figures_on_hand_made_frames():
+    """Three frames of one UAV each (truth widths 10, 16 and 40 px), threshold 0.5: two UAVs found,
+    one box off a UAV in each of two frames, and one box below the threshold."""
+
+    def frame(gt, boxes, scores):
+        return {"gt": np.array([gt], float), "boxes": np.array(boxes, float).reshape(-1, 4),
+                "scores": np.array(scores, float), "ms": 3.0}
+
+    frames = [frame([0, 0, 10, 10], [[50, 50, 60, 60], [0, 0, 10, 10]], [0.7, 0.9]),
+              frame([0, 0, 16, 16], [[50, 50, 60, 60], [0, 0, 16, 16]], [0.6, 0.3]),
+              frame([0, 0, 40, 20], [[0, 0, 40, 20]], [0.8])]
+    r = summarise(frames, threshold=0.5)
+    assert (r["precision"], r["recall"]) == pytest.approx((2 / 4, 2 / 3))
+    assert r["false_positives_per_100_frames"] == pytest.approx(200 / 3)
+    assert r["best_box_false_positives_per_100_frames"] == pytest.approx(100 / 3)  # frame 2's best box
+    assert r["recall_by_width_px"] == {"8-16": {"recall": 1.0, "count": 1}, "16-32": {"recall": 0.0, "count": 1},
+                                       "32-64": {"recall": 1.0, "count": 1}}
+    assert r["recall_wider_than_16px"] == 1.0  # only the 40 px UAV is wider than 16 px
+    # every box, best first: 0.9 TP, 0.8 TP, 0.7 FP, 0.6 FP, 0.3 TP over 3 UAVs
+    assert r["ap50"] == pytest.approx(1 / 3 + 1 / 3 + 1 / 3 * 3 / 5)
+    assert (r["frames"], r["ground_truth_boxes"], r["ms_per_frame"]) == (3, 3, 3.0)

@@ -4,6 +4,7 @@ import json
 
 import numpy as np
 import pytest
+from matplotlib.cbook import boxplot_stats
 
 from uav_landing_vision.evaluation import (
     STAT_KEYS,
@@ -38,9 +39,17 @@ def test_statistics_match_numpy():
     assert s["mae"] == pytest.approx(np.abs(v).mean())
     assert s["rmse"] == pytest.approx(np.sqrt(np.mean(v**2)))
     assert s["sd"] == pytest.approx(np.std(v, ddof=1))
-    iqr = q3 - q1
-    assert s["outlier_pct"] == pytest.approx(100 * np.mean((v < q1 - 1.5 * iqr) | (v > q3 + 1.5 * iqr)))
-    assert s["rmse"] >= s["mae"]
+    assert (s["p25"], s["p75"]) == pytest.approx((q1, q3))
+    assert s["outlier_pct"] == pytest.approx(100 * len(boxplot_stats(v)[0]["fliers"]) / len(v))  # Tukey's fences
+    assert s["outlier_pct"] > 0 and s["rmse"] >= s["mae"]
+
+
+def test_values_on_the_fences_are_not_outliers():
+    """Tukey's fences (matplotlib's box-plot whiskers): outliers lie beyond q1 − 1.5 IQR or q3 + 1.5 IQR."""
+    on = [-1.0, 2.0, 3.0, 4.0, 7.0]  # q1 = 2, q3 = 4: the fences are −1 and 7
+    assert len(boxplot_stats(on)[0]["fliers"]) == 0 and error_statistics(on)["outlier_pct"] == 0.0
+    beyond = [-1.001, 2.0, 3.0, 4.0, 7.001]
+    assert len(boxplot_stats(beyond)[0]["fliers"]) == 2 and error_statistics(beyond)["outlier_pct"] == 40.0
 
 
 def test_hand_made_outliers_and_values():

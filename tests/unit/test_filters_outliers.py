@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 from scipy import stats
+from scipy.spatial.transform import Rotation
 
 from uav_landing_vision.filters import outliers
 
@@ -28,8 +29,15 @@ def test_mixture_moments_match_samples_of_the_mixture():
     np.testing.assert_allclose(cov, np.cov(x.T), atol=0.01)
 
 
+def test_the_outlier_density_is_that_of_uniform_rotations_at_small_angles():
+    """Uniform rotations (scipy) within 0.4 rad of the identity, per rad³ of the rotation-vector ball."""
+    r = 0.4
+    inside = np.mean(Rotation.random(400_000, random_state=3).magnitude() < r)
+    assert np.log(inside / (4 / 3 * np.pi * r**3)) == pytest.approx(outliers.UNIFORM_ROTATION_LOG_DENSITY, abs=0.06)
+
+
 def test_inlier_probability():
-    log_lik = np.array([5.0, outliers.UNIFORM_ROTATION_LOG_DENSITY, -300.0])
+    log_lik = np.array([5.0, -np.log(8 * np.pi**2), -300.0])  # the middle one: as likely as an outlier
     np.testing.assert_array_equal(outliers.inlier_probability(log_lik, 0.0), 1.0)
     w = outliers.inlier_probability(log_lik, 0.2)
     assert w[0] > 0.999 and w[1] == pytest.approx(0.8) and w[2] < 1e-100

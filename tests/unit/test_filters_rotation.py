@@ -101,6 +101,56 @@ def test_translation_filter_tracks_constant_velocity():
     np.testing.assert_allclose(pos, vel * 59 * cfg.dt, atol=0.01)
 
 
+def test_translation_filter_is_the_kalman_filter_of_the_configured_standard_deviations():
+    """The model (A.2) is linear, so the UKF is exactly the Kalman filter with ``P0``, ``Q``
+    (taken through the model, A.12) and ``R`` the squares of the configured standard deviations."""
+    cfg = MotionFilterConfig(position_process_std=0.2, velocity_process_std=0.7, position_measurement_std=0.4,
+                             initial_position_std=1.5, initial_velocity_std=3.0)
+    filt = TranslationFilter(cfg)
+    ref = KalmanFilter(dim_x=6, dim_z=3)
+    ref.F = np.block([[np.eye(3), cfg.dt * np.eye(3)], [np.zeros((3, 3)), np.eye(3)]])
+    ref.H = np.eye(3, 6)
+    ref.P = np.diag([1.5**2] * 3 + [3.0**2] * 3)
+    ref.Q = ref.F @ np.diag([0.2**2] * 3 + [0.7**2] * 3) @ ref.F.T
+    ref.R = 0.4**2 * np.eye(3)
+    ref.x = np.array([1.0, -2.0, 30.0, 0.5, 0.0, -4.0])
+    state = filt.init(ref.x[None, :3], ref.x[None, 3:])
+    for z in np.random.default_rng(13).normal([1.0, -2.0, 29.0], 0.5, (5, 3)):
+        ref.predict()
+        ref.update(z)
+        state = filt.update(filt.predict(state), z[None])
+        np.testing.assert_allclose(state.x[0], ref.x, atol=1e-9)
+        np.testing.assert_allclose(state.p[0], ref.P, atol=1e-9)
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_outlier_aware_update_weighs_a_doubtful_measurement_by_its_inlier_probability(kind):
+    """A measurement 0.27 rad off, ε = 0.9: the posterior inlier probability (ours) is, with
+    concentrated noises, that of a Gaussian in rotation-vector coordinates (variance −2/z per
+    axis of the prior and of the measurement) against the uniform rotation, 1/(8π²) per rad³
+    (the Haar measure at small angles), w ≈ 0.52. Each filter moves that share of the thesis
+    update's step (the UBiF mixes its scatter matrices by it)."""
+    eps, z, delta = 0.9, -800.0, 0.27
+    cov = 2 * (-2.0 / z)
+    log_n = -0.5 * delta**2 / cov - 1.5 * np.log(2 * np.pi * cov)
+    w_expected = 1.0 / (1.0 + eps / (1 - eps) / (8 * np.pi**2) * np.exp(-log_n))
+    cfg = MotionFilterConfig(rotation_filter=kind, outlier_prob=eps, initial_z=(z,) * 3, measurement_z=(z,) * 3)
+    aware, plain = make_rotation_filter(cfg), make_rotation_filter(dataclasses.replace(cfg, outlier_prob=0.0))
+    q0 = Rotation.random(3, random_state=21)
+    turn = Rotation.from_rotvec(delta * np.array([[1.0, 0.0, 0.0], [0.0, 0.6, 0.8], [0.0, 0.0, 1.0]]))
+    state = aware.init(q0.as_quat(), np.zeros((3, 3)))
+    mixed, updated = aware.update(state, (q0 * turn).as_quat()), plain.update(state, (q0 * turn).as_quat())
+    if kind == "ubif":
+        s0, s1, sw = (bingham.covariance(s.m, s.z).reshape(3, 16) for s in (state, updated, mixed))
+        w = np.sum((sw - s0) * (s1 - s0), axis=1) / np.sum((s1 - s0) ** 2, axis=1)
+    else:  # the step in the error coordinates, from an unbiased prediction (its mean is q0)
+        step = [(Rotation.from_quat(f.estimate(s)[0]) * q0.inv()).magnitude()
+                for f, s in ((aware, mixed), (plain, updated))]
+        w = step[0] / step[1]
+    assert w_expected == pytest.approx(0.52, abs=0.01)
+    np.testing.assert_allclose(w, w_expected, atol=0.02)
+
+
 @pytest.mark.parametrize(
     "change",
     [{"rotation_filter": "kalman"}, {"dt": 0.0}, {"process_z": (-250.0, 1.0, -250.0)}, {"measurement_z": (-1e6,) * 3},

@@ -59,6 +59,8 @@ def edit(path: str, value):
         ("mavlink.messages", [], "non-empty"),
         ("mavlink.odometry_frame", "LOCAL_ENU", "'LOCAL_ENU' is not one of"),
         ("mavlink.system_id", 0, "1..255"),
+        ("mavlink.rate_hz", 150.0, r"rate_hz must be in \(0, 100\]"),
+        ("mavlink.signing_link_id", 256, "signing_link_id must be in 0..255"),
         ("mavlink.connection", " ", "connection"),
         ("camera.position_m", [0.0, 1.0], "expected 3 values"),
         ("net_position_m", [0.0, math.nan, 0.0], "finite"),

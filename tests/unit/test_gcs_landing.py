@@ -146,7 +146,8 @@ def test_nominal_landing(bridge):
     assert range_at(first_tick(results, Stage.APPROACH)) <= 100.0
     assert 50.0 - 20.0 * 0.1 <= range_at(first_tick(results, Stage.LAND)) <= 50.0
     assert 10.0 - 20.0 * 0.1 <= range_at(first_tick(results, Stage.NO_RETURN)) <= 10.0
-    assert [t for t, _ in bridge.sender.texts] and "NO_RETURN" in bridge.sender.texts[-1][0]
+    assert [text.split()[1] for text, _ in bridge.sender.texts] == ["APPROACH", "LAND", "NO_RETURN"]
+    assert {severity for _, severity in bridge.sender.texts} == {5}  # MAV_SEVERITY_NOTICE: no warning
     last_pose_stamp = bridge.sender.poses[-1][0]
     assert range_at(last_pose_stamp) >= 3.0  # nothing sent once the track is lost
     assert all(len(text) <= 50 for text, _ in bridge.sender.texts)
@@ -254,6 +255,11 @@ def test_stale_and_out_of_order_poses_are_ignored(bridge):
     assert not bridge.on_pose(1.0, p_cam, q_cam, COV, now_s=1.0 + CONFIG.stale_timeout_s + 0.01)
     assert bridge.on_pose(2.0, p_cam, q_cam, COV, now_s=2.0)
     assert not bridge.on_pose(1.5, p_cam, q_cam, COV, now_s=2.0)
+    bridge.on_tracker_state(TRACKER_TRACKING, 2.0)  # the first call's clock (1.31 s) dropped the status
+    assert bridge.tick(2.01).sent == ("HEARTBEAT", "STATUSTEXT", "ODOMETRY")
+    assert not bridge.on_pose(2.0, p_cam, q_cam, COV, now_s=2.2)  # the same frame again (a repeated message)
+    bridge.on_tracker_state(TRACKER_TRACKING, 2.0)
+    assert "ODOMETRY" not in bridge.tick(2.21).sent and len(bridge.sender.poses) == 1  # sent once
 
 
 def camera_pose(p_land, rpy=(0.0, 0.0, 0.0)):
@@ -267,6 +273,8 @@ def test_pose_stamped_ahead_of_the_clock_is_refused_and_does_not_shut_out_later_
     p_cam, q_cam = camera_pose(on_axis(30.0))
     with pytest.raises(ValueError, match="ahead of the clock"):
         bridge.on_pose(100.0, p_cam, q_cam, COV, now_s=4.6)
+    with pytest.raises(ValueError, match="ahead of the clock"):  # the tolerance is 0.05 s
+        bridge.on_pose(4.66, p_cam, q_cam, COV, now_s=4.6)
     assert bridge.on_pose(4.55, p_cam, q_cam, COV, now_s=4.6)  # the next correct pose is taken
     # 40 m to starboard: outside the cone, so LAND ends at the next tick
     p_cam, q_cam = camera_pose(on_axis(30.0, lateral_m=40.0))
@@ -505,6 +513,17 @@ def test_poses_outside_the_cone_do_not_count_towards_no_return():
     assert machine.update(0.3, geometry_at(9.6), 0.3) == Stage.LAND  # two in-cone poses of three
     assert machine.update(0.4, geometry_at(9.4), 0.4) == Stage.NO_RETURN
 
+
+def test_after_a_reset_no_return_needs_a_new_run_of_poses():
+    """The poses before an operator reset (which committed the last landing) do not count
+    towards the next one: with five confirming poses, the new track commits at its fifth."""
+    machine = StageMachine(dataclasses.replace(CONE, no_return_confirm_poses=5), go_around_hold_s=1.0)
+    ranges = iter(np.arange(9.9, 0.0, -0.1))
+    stages_seen = [machine.update(0.1 * k, geometry_at(next(ranges)), 0.1 * k) for k in range(6)]
+    assert stages_seen[-1] == Stage.NO_RETURN
+    machine.reset()
+    stages_seen = [machine.update(0.1 * k, geometry_at(next(ranges)), 0.1 * k) for k in range(6, 11)]
+    assert stages_seen == [Stage.APPROACH, Stage.LAND, Stage.LAND, Stage.LAND, Stage.NO_RETURN]
 
 def test_dataclass_config_is_what_the_bridge_uses():
     cfg = dataclasses.replace(CONFIG, cone=dataclasses.replace(CONE, distance_m=30.0))

@@ -1,6 +1,7 @@
 """The UPF tracker (tracking/upf.py) on synthetic frames: proposals, determinism, track states,
 covariance, configuration."""
 
+import copy
 from dataclasses import replace
 
 import numpy as np
@@ -22,6 +23,7 @@ from uav_landing_vision.tracking.track_state import TrackMonitor, TrackState, Tr
 from uav_landing_vision.tracking.upf import (
     MAX_PREDICTION_STEPS,
     Tracker,
+    _hypothesis_set,
     TrackerConfig,
     coasting_covariance,
     constant_velocity_prediction,
@@ -91,6 +93,33 @@ def test_hypothesis_counts_follow_the_variant(renderer, frame):
     c4.step(frame, 0, hypotheses(1))
     c1.step(frame, 0, hypotheses(1))
     assert c4.hypotheses_needed() == 10 and c1.hypotheses_needed() == 40
+
+
+def assert_same_poses(particles, pos, quat):
+    np.testing.assert_allclose(particles.pos, pos, rtol=0, atol=1e-12)
+    assert np.degrees(geodesic_angle(particles.quat, quat)).max() < 1e-6
+
+
+@pytest.mark.parametrize("variant", ["C2N0", "C4N0"])
+def test_the_mix_is_the_best_carried_particles_and_the_first_hypotheses_pose_by_pose(renderer, frame, variant):
+    """Alg. 3 step 1: hypotheses come best first, so a frame takes the first ``hypotheses_needed()``
+    of them, each position with its own rotation, after the best M0 carried particles (the set is
+    kept best first) predicted over the frames' gap: by (3.12) in C2 (the oracle: the same
+    draws), by the filters in C4 (a track at rest stays where it was)."""
+    tracker = Tracker(TrackerConfig.from_variant(variant, particles=40, boosted=10), CAMERA, renderer)
+    first = hypotheses(1)  # 60 poses
+    tracker.step(frame, 0, first)
+    assert_same_poses(tracker._fresh, first.positions[:40], first.quats[:40])
+    carried = tracker.particles
+    assert np.all(np.diff(carried.weight) <= 0) and carried.weight[0] > carried.weight[-1]  # best first
+    second = hypotheses(2)
+    best, rng = carried.take(np.arange(30)), copy.deepcopy(tracker.rng)
+    for _ in range(3 if variant == "C2N0" else 0):
+        best = constant_velocity_prediction(best, tracker.config.motion, rng)
+    mixed = tracker._mix(_hypothesis_set(second, tracker.hypotheses_needed()), 3)  # two frames unseen
+    assert len(mixed) == 40
+    assert_same_poses(mixed.take(np.arange(30)), best.pos, best.quat)
+    assert_same_poses(mixed.take(np.arange(30, 40)), second.positions[:10], second.quats[:10])
 
 
 def test_optimisation_does_not_lose_the_best_pose(renderer, frame):
@@ -296,6 +325,26 @@ def test_track_monitor_transitions():
         TrackState.ACQUIRING, TrackState.TRACKING]
     with pytest.raises(ValueError):
         TrackStateConfig(acquire_likelihood=0.1, lost_likelihood=0.2)
+
+
+def test_track_monitor_thresholds_are_inclusive_as_documented_and_coasting_limit_zero_is_off():
+    """``b ≥ acquire_likelihood`` counts toward TRACKING and ``b < lost_likelihood`` toward LOST
+    (a score on a threshold: good, not bad); ``max_coast_frames: 0`` never unconfirms a track;
+    a re-initialisation starts both counts afresh."""
+    cfg = TrackStateConfig(acquire_likelihood=0.5, acquire_frames=2, lost_likelihood=0.1, lost_frames=2)
+    m = TrackMonitor(cfg)
+    m.initialised()
+    assert [m.update(0.5) for _ in range(2)] == [TrackState.ACQUIRING, TrackState.TRACKING]  # on it: good
+    m.initialised()  # the good frames before it do not count
+    assert m.update(0.9) == TrackState.ACQUIRING
+    assert [m.update(0.1) for _ in range(4)] == [TrackState.ACQUIRING] * 4  # on lost_likelihood: not bad
+    m.update(0.05)
+    m.initialised()  # nor the bad one: one more bad frame is not lost_frames in a row
+    assert m.update(0.05) == TrackState.ACQUIRING and m.update(0.05) == TrackState.LOST
+    never = TrackMonitor(replace(cfg, max_coast_frames=0))
+    never.initialised()
+    states = [never.update(0.9, coasting=c) for c in (0, 0, 1, 50, 1000)]
+    assert states == [TrackState.ACQUIRING] + [TrackState.TRACKING] * 4
 
 
 def test_covariance_is_the_weighted_particle_spread_about_the_estimate_in_camera_axes():
