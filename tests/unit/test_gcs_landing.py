@@ -297,35 +297,26 @@ def test_a_clock_that_jumps_back_drops_the_held_pose(bridge):
     assert bridge.on_pose(9.0, p_cam, q_cam, COV, now_s=9.0)  # LOST forgets the newest stamp too
 
 
-def test_a_loss_between_two_ticks_goes_around_even_if_the_track_is_back(bridge):
-    fly(bridge, approach(), t_end=(120.0 - 20.0) / 20.0)  # LAND at 20 m
+@pytest.mark.parametrize("land_range_m, t0, lost_first", [(20.0, 5.0, True), (14.0, 5.3, False)])
+def test_a_loss_or_restart_between_two_ticks_goes_around_even_if_the_track_is_back(bridge, land_range_m, t0,
+                                                                                   lost_first):
+    """LOST then re-acquired within one tick, or a restart of the tracker's track (new calibration,
+    a frame it could not step), which says ACQUIRING for two frames only, 67 ms at 30 fps: whether
+    LAND goes around must not depend on whether a 10 Hz tick fell between those statuses, nor may
+    the new track's poses extend the old one's run towards NO_RETURN."""
+    fly(bridge, approach(), t_end=(120.0 - land_range_m) / 20.0)  # LAND, a full run of in-cone poses
     assert bridge.stage == Stage.LAND
-    bridge.on_tracker_state(TRACKER_LOST, 5.0)  # lost and re-acquired within one tick period
+    if lost_first:
+        bridge.on_tracker_state(TRACKER_LOST, t0)
     for k, state in enumerate([TRACKER_ACQUIRING, TRACKER_ACQUIRING, TRACKER_TRACKING]):
-        t = 5.0 + (k + 1) / 30
+        t = t0 + (k + 1) / 30
         assert feed(bridge, t, on_axis(range_at(t)), state=state)
     sent = len(bridge.sender.poses)
-    result = bridge.tick(5.1 + 0.03)
+    result = bridge.tick(t0 + 0.1 + 0.03)
     assert result.guidance.stage == Stage.GO_AROUND and "ODOMETRY" not in result.sent
     assert len(bridge.sender.poses) == sent and math.isnan(result.guidance.range)
-    assert bridge.tick(5.2).sent == ("ODOMETRY",)  # the next tick sends the new track's pose
-
-
-def test_a_track_restart_between_two_ticks_goes_around_even_if_the_track_is_back(bridge):
-    """A restart of the tracker's track (new calibration, a frame it could not step) says
-    ACQUIRING for two frames, 67 ms at 30 fps: whether LAND goes around must not depend on
-    whether a 10 Hz tick fell between those statuses, nor may the new track's poses extend the
-    old one's run towards NO_RETURN."""
-    fly(bridge, approach(), t_end=(120.0 - 14.0) / 20.0)  # LAND at 14 m, a full run of in-cone poses
-    assert bridge.stage == Stage.LAND
-    for k, state in enumerate([TRACKER_ACQUIRING, TRACKER_ACQUIRING, TRACKER_TRACKING]):
-        t = 5.3 + (k + 1) / 30
-        assert feed(bridge, t, on_axis(range_at(t)), state=state)
-    sent = len(bridge.sender.poses)
-    result = bridge.tick(5.4 + 0.03)
-    assert result.guidance.stage == Stage.GO_AROUND and "ODOMETRY" not in result.sent
-    assert len(bridge.sender.poses) == sent and math.isnan(result.guidance.range)
-    assert bridge.tick(5.5).sent == ("ODOMETRY",) and bridge.sender.poses[-1][0] == pytest.approx(5.4)
+    assert bridge.tick(t0 + 0.2).sent == ("ODOMETRY",)  # the next tick sends the new track's pose
+    assert bridge.sender.poses[-1][0] == pytest.approx(t0 + 0.1)
 
 
 def test_a_pose_is_sent_only_once_a_status_of_its_frame_says_tracking(bridge):
