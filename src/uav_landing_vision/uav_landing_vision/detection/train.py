@@ -27,6 +27,13 @@ LEVEL_LIMITS = (48.0, 144.0)  # larger box side (input px) separating the stride
 VAL_EVERY = 10  # image i is validation when i % VAL_EVERY == 0
 
 
+def check_optimiser_settings(lr: float, weight_decay: float) -> None:
+    """ValueError unless the learning rate is finite and positive and the weight decay finite and
+    non-negative (the detector's and the verifier's trainers)."""
+    if not (np.isfinite(lr) and lr > 0 and np.isfinite(weight_decay) and weight_decay >= 0):
+        raise ValueError(f"need a finite lr > 0 and weight_decay ≥ 0, got {lr} and {weight_decay}")
+
+
 @dataclass(frozen=True)
 class TrainConfig:
     data: tuple[str, ...] = ("out/detection_data",)  # dataset folders, used together
@@ -51,8 +58,7 @@ class TrainConfig:
                 or self.max_images < 0):
             raise ValueError("need epochs ≥ 1, batch ≥ 1, width ≥ 8, threads ≥ 1, loader_workers ≥ 0 "
                              "and max_images ≥ 0")
-        if not (np.isfinite(self.lr) and self.lr > 0 and np.isfinite(self.weight_decay) and self.weight_decay >= 0):
-            raise ValueError(f"need a finite lr > 0 and weight_decay ≥ 0, got {self.lr} and {self.weight_decay}")
+        check_optimiser_settings(self.lr, self.weight_decay)
         if min(self.input_size) <= 0 or (min(self.crop) <= 0 and tuple(self.crop) != (0, 0)):
             raise ValueError(f"input_size must be positive and crop positive or (0, 0), got {self.input_size} "
                              f"and {self.crop}")

@@ -25,7 +25,7 @@ from .dataset import read_labels
 from .detector import Detector, DetectorConfig, box_iou
 from .evaluation import average_precision
 from .network import BoxVerifierNet
-from .train import VAL_EVERY, restore
+from .train import VAL_EVERY, check_optimiser_settings, restore
 from .verifier import CropGeometry, box_crops, crop_blob
 
 MINE_MAX_BOXES = 20  # candidate boxes per image
@@ -51,8 +51,7 @@ class VerifierTrainConfig:
     def __post_init__(self):
         if self.epochs < 1 or self.batch < 2 or self.width < 4 or self.threads < 1 or self.workers < 1:
             raise ValueError("need epochs ≥ 1, batch ≥ 2, width ≥ 4, threads ≥ 1, workers ≥ 1")
-        if not (np.isfinite(self.lr) and self.lr > 0 and np.isfinite(self.weight_decay) and self.weight_decay >= 0):
-            raise ValueError(f"need a finite lr > 0 and weight_decay ≥ 0, got {self.lr} and {self.weight_decay}")
+        check_optimiser_settings(self.lr, self.weight_decay)
         if not 0 < self.mine_threshold < 1 or not 0 <= self.negative_iou < self.positive_iou <= 1:
             raise ValueError("need 0 < mine_threshold < 1 and 0 ≤ negative_iou < positive_iou ≤ 1")
         if not self.data:

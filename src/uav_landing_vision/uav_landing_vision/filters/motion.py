@@ -15,7 +15,7 @@ import numpy as np
 from . import bingham, outliers
 from .ubif import UBiF
 from .ubigaf import UBiGaF
-from .ukf import RotationUKF, TranslationUKF, UnscentedParams
+from .ukf import RotationUKF, TranslationUKF, UnscentedParams, check_dt
 
 Vec3 = tuple[float, float, float]
 KINDS = ("ukf", "ubif", "ubigaf")
@@ -45,8 +45,7 @@ class MotionFilterConfig:
     def __post_init__(self):
         if self.rotation_filter not in KINDS:
             raise ValueError(f"rotation_filter must be one of {KINDS}, got {self.rotation_filter!r}")
-        if not (np.isfinite(self.dt) and self.dt > 0):
-            raise ValueError(f"dt must be positive, got {self.dt}")
+        check_dt(self.dt)
         for name in ("process_z", "measurement_z", "initial_z"):  # stored as (z1, z2, z3), also if given with the 0
             z = bingham.check_concentration(getattr(self, name), name)
             object.__setattr__(self, name, tuple(map(float, z)))

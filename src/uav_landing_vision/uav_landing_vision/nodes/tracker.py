@@ -51,7 +51,7 @@ from ..config import ConfigError
 from ..model import fixed_wing_mesh
 from ..render import Renderer
 from ..render.context import GLContextError, gl_context
-from ..tracking.upf import MAX_PREDICTION_STEPS, Tracker, TrackerConfig, render_batch
+from ..tracking.upf import MAX_PREDICTION_STEPS, Tracker, TrackerConfig, gap_steps, render_batch
 from .base import LandingNode, run_node, stamp_ns
 from .calibration import Calibration
 from .image import ImageError, image_to_rgb, numpy_to_image
@@ -244,11 +244,10 @@ class TrackerNode(LandingNode):
 
     def _restart_after_gap(self, tracker: Tracker, stamp: int) -> None:
         """Restart the track if ``stamp`` is further after the last tracked frame than the motion model predicts."""
-        dt = self.config.motion.dt
-        gap_s = (stamp - self._last_stamp) * 1e-9
-        if self._last_stamp >= 0 and tracker.particles is not None and round(gap_s / dt) > MAX_PREDICTION_STEPS:
-            self.get_logger().warning(f"frame stamped {stamp} ns comes {gap_s:.1f} s after the last tracked frame, beyond "
-                                      f"the {MAX_PREDICTION_STEPS * dt:.1f} s the motion model predicts: the track restarts")
+        dt, gap_ns = self.config.motion.dt, stamp - self._last_stamp
+        if self._last_stamp >= 0 and tracker.particles is not None and gap_steps(gap_ns, dt) > MAX_PREDICTION_STEPS:
+            self.get_logger().warning(f"frame stamped {stamp} ns comes {gap_ns * 1e-9:.1f} s after the last tracked frame, "
+                                      f"beyond the {MAX_PREDICTION_STEPS * dt:.1f} s the motion model predicts: the track restarts")
             tracker.reset()
 
     def _overlay(self, frame: np.ndarray, result) -> np.ndarray:

@@ -235,7 +235,12 @@ def prediction_steps(gap_ns: int | None, dt: float) -> int:
     tracker slower than the camera, a dropped frame) make gaps of several Δt."""
     if gap_ns is None:
         return 1
-    return int(min(max(round(gap_ns * 1e-9 / dt), 1), MAX_PREDICTION_STEPS))
+    return int(min(max(gap_steps(gap_ns, dt), 1), MAX_PREDICTION_STEPS))
+
+
+def gap_steps(gap_ns: int, dt: float) -> int:
+    """A stamp gap in whole Δt, rounded (not bounded: see :func:`prediction_steps`)."""
+    return round(gap_ns * 1e-9 / dt)
 
 
 def depth_prior(depth: np.ndarray, anchor: float, sigma: float, floor: float) -> np.ndarray:
