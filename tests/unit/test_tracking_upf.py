@@ -54,6 +54,12 @@ def frame(renderer):
     return img
 
 
+def shot(img: np.ndarray, k: int) -> np.ndarray:
+    """``img`` as a live camera's frame k: ±1 of seeded sensor noise, so no two frames are identical."""
+    noise = np.random.default_rng(k).integers(-1, 2, size=img.shape)
+    return np.clip(img.astype(int) + noise, 0, 255).astype(np.uint8)
+
+
 class Hyps:
     """Boosted poses as the pose_boosting node publishes them: arrays, best first."""
 
@@ -254,9 +260,9 @@ def test_track_states_lost_reinitialise_acquire_track(renderer, frame):
                                      track=TrackStateConfig(acquire_likelihood=0.1, acquire_frames=2,
                                                             lost_likelihood=0.01, lost_frames=2))
     tracker = Tracker(cfg, CAMERA, renderer)
-    nothing = tracker.step(frame, 0, None)  # no particles, no hypotheses
+    nothing = tracker.step(shot(frame, 0), 0, None)  # no particles, no hypotheses
     assert nothing.state == TrackState.LOST and not nothing.has_pose
-    states = [tracker.step(frame, k, hypotheses(k)).state for k in range(1, 4)]
+    states = [tracker.step(shot(frame, k), k, hypotheses(k)).state for k in range(1, 4)]
     assert states == [TrackState.ACQUIRING, TrackState.TRACKING, TrackState.TRACKING]
     # the UAV leaves: an empty sky scores 0 everywhere
     first = tracker.step(SKY, 4, hypotheses(4))
@@ -264,7 +270,7 @@ def test_track_states_lost_reinitialise_acquire_track(renderer, frame):
     second = tracker.step(SKY, 5, hypotheses(5))
     assert second.state == TrackState.LOST and tracker.particles is None
     assert tracker.hypotheses_needed() == 40
-    again = tracker.step(frame, 6, hypotheses(6))
+    again = tracker.step(shot(frame, 6), 6, hypotheses(6))
     assert again.state == TrackState.ACQUIRING and again.has_pose
 
 
@@ -274,17 +280,39 @@ def test_a_track_coasting_without_hypotheses_is_no_longer_vouched_for(renderer, 
     must come back before the track is TRACKING again."""
     track = TrackStateConfig(acquire_likelihood=0.1, acquire_frames=2, lost_likelihood=0.01, max_coast_frames=4)
     tracker = Tracker(TrackerConfig.from_variant("C4N0", particles=40, boosted=10, track=track), CAMERA, renderer)
-    assert [tracker.step(frame, k, hypotheses(k)).state for k in range(3)][-1] == TrackState.TRACKING
+    assert [tracker.step(shot(frame, k), k, hypotheses(k)).state for k in range(3)][-1] == TrackState.TRACKING
     horizon = SKY.copy()
     horizon[118:] = (40, 70, 90)  # sea below a horizon through the UAV's last position
-    gone = [tracker.step(horizon, k, None) for k in range(3, 11)]
+    gone = [tracker.step(shot(horizon, k), k, None) for k in range(3, 11)]
     assert min(r.best_likelihood for r in gone) > track.lost_likelihood  # the horizon scores: no LOST
     assert [r.state for r in gone] == [TrackState.TRACKING] * 3 + [TrackState.ACQUIRING] * 5
     assert all(r.has_pose for r in gone)  # the estimate is still published, as unconfirmed
-    back = [tracker.step(frame, k, hypotheses(k)).state for k in range(11, 14)]
+    back = [tracker.step(shot(frame, k), k, hypotheses(k)).state for k in range(11, 14)]
     assert back == [TrackState.ACQUIRING, TrackState.TRACKING, TrackState.TRACKING]
     with pytest.raises(ValueError, match="max_coast_frames"):
         TrackStateConfig(max_coast_frames=-1)
+
+
+def test_a_frozen_camera_repeating_its_last_frame_no_longer_vouches_for_the_track(renderer, frame):
+    """A camera or driver that freezes re-sends its last picture with new stamps: boosting finds
+    the UAV in it every frame and the track holds it still, so the likelihood alone would say
+    TRACKING while the aircraft flies on. After max_repeated_frames identical frames in a row the
+    track is unconfirmed until the picture changes; one repeat below the limit changes nothing."""
+    track = TrackStateConfig(acquire_likelihood=0.1, acquire_frames=2, lost_likelihood=0.01, max_repeated_frames=3)
+    tracker = Tracker(TrackerConfig.from_variant("C4N0", particles=40, boosted=10, track=track), CAMERA, renderer)
+    live = [tracker.step(shot(frame, k), k, hypotheses(k)).state for k in range(3)]
+    assert live == [TrackState.ACQUIRING, TrackState.TRACKING, TrackState.TRACKING]
+    frozen = shot(frame, 2)  # frame 2's picture again and again
+    states = [tracker.step(frozen.copy(), k, hypotheses(k)) for k in range(3, 8)]
+    assert [r.state for r in states] == [TrackState.TRACKING] * 2 + [TrackState.ACQUIRING] * 3
+    assert all(r.has_pose and r.best_likelihood > track.acquire_likelihood for r in states)  # only the repeats tell
+    back = [tracker.step(shot(frame, k), k, hypotheses(k)).state for k in range(8, 11)]
+    assert back == [TrackState.ACQUIRING, TrackState.TRACKING, TrackState.TRACKING]
+    tracker.reset()  # a new time-line forgets the last picture: its first frame is not a repeat
+    assert [tracker.step(frozen, k, hypotheses(k)).state for k in range(3)] == [
+        TrackState.ACQUIRING, TrackState.TRACKING, TrackState.TRACKING]
+    with pytest.raises(ValueError, match="max_repeated_frames"):
+        TrackStateConfig(max_repeated_frames=-1)
 
 
 def test_prediction_carries_the_track_through_a_frame_without_hypotheses(renderer, frame):
@@ -329,7 +357,8 @@ def test_track_monitor_transitions():
 
 def test_track_monitor_thresholds_are_inclusive_as_documented_and_coasting_limit_zero_is_off():
     """``b ≥ acquire_likelihood`` counts toward TRACKING and ``b < lost_likelihood`` toward LOST
-    (a score on a threshold: good, not bad); ``max_coast_frames: 0`` never unconfirms a track;
+    (a score on a threshold: good, not bad); ``max_coast_frames: 0`` and ``max_repeated_frames: 0``
+    never unconfirm a track, a repeat count at the limit does;
     a re-initialisation starts both counts afresh."""
     cfg = TrackStateConfig(acquire_likelihood=0.5, acquire_frames=2, lost_likelihood=0.1, lost_frames=2)
     m = TrackMonitor(cfg)
@@ -341,10 +370,15 @@ def test_track_monitor_thresholds_are_inclusive_as_documented_and_coasting_limit
     m.update(0.05)
     m.initialised()  # nor the bad one: one more bad frame is not lost_frames in a row
     assert m.update(0.05) == TrackState.ACQUIRING and m.update(0.05) == TrackState.LOST
-    never = TrackMonitor(replace(cfg, max_coast_frames=0))
+    never = TrackMonitor(replace(cfg, max_coast_frames=0, max_repeated_frames=0))
     never.initialised()
-    states = [never.update(0.9, coasting=c) for c in (0, 0, 1, 50, 1000)]
+    states = [never.update(0.9, coasting=c, repeated=c) for c in (0, 0, 1, 50, 1000)]
     assert states == [TrackState.ACQUIRING] + [TrackState.TRACKING] * 4
+    limit = TrackMonitor(cfg)  # max_repeated_frames 3 by default, inclusive
+    limit.initialised()
+    assert [limit.update(0.9, repeated=r) for r in (0, 1, 2, 3, 0, 0)] == [
+        TrackState.ACQUIRING, TrackState.TRACKING, TrackState.TRACKING, TrackState.ACQUIRING,
+        TrackState.ACQUIRING, TrackState.TRACKING]
 
 
 def test_covariance_is_the_weighted_particle_spread_about_the_estimate_in_camera_axes():

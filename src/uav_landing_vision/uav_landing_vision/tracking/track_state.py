@@ -9,6 +9,10 @@ Rules, checked once per frame on the best particle's likelihood ``b``:
   boosted hypotheses (0: never), and no frame counts toward TRACKING until hypotheses return:
   a scene without the UAV can score high (a horizon edge under the colour metric), so without
   fresh evidence from the detector and boosting the estimate is not vouched for;
+- likewise once ``max_repeated_frames`` frames in a row have been pixel for pixel the frame before
+  them (0: never), until the picture changes: a live camera's sensor noise never repeats a frame,
+  but a frozen camera or driver re-sending its last picture with new stamps does, and the track
+  would hold the UAV still, and say TRACKING, while the aircraft flies on;
 - any state → LOST after ``lost_frames`` consecutive frames with ``b < lost_likelihood``, or at
   once when there is nothing to track (no particles and no hypotheses). LOST drops the
   particles; the next frame with hypotheses re-initialises the filter (ACQUIRING again).
@@ -35,14 +39,16 @@ class TrackStateConfig:
     lost_likelihood: float = 0.08
     lost_frames: int = 5
     max_coast_frames: int = 15
+    max_repeated_frames: int = 3
 
     def __post_init__(self):
         if not 0.0 <= self.lost_likelihood < self.acquire_likelihood:
             raise ValueError("track_state: need 0 <= lost_likelihood < acquire_likelihood")
         if self.acquire_frames < 1 or self.lost_frames < 1:
             raise ValueError("track_state: acquire_frames and lost_frames must be at least 1")
-        if self.max_coast_frames < 0:
-            raise ValueError(f"track_state: max_coast_frames must be non-negative, got {self.max_coast_frames}")
+        for name in ("max_coast_frames", "max_repeated_frames"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"track_state: {name} must be non-negative, got {getattr(self, name)}")
 
 
 class TrackMonitor:
@@ -62,11 +68,12 @@ class TrackMonitor:
         self.state, self._good, self._bad = TrackState.LOST, 0, 0
         return self.state
 
-    def update(self, best_likelihood: float, coasting: int = 0) -> TrackState:
+    def update(self, best_likelihood: float, coasting: int = 0, repeated: int = 0) -> TrackState:
         """The state after a frame whose best particle scored ``best_likelihood``, the track
-        having coasted ``coasting`` frames in a row without boosted hypotheses."""
+        having coasted ``coasting`` frames in a row without boosted hypotheses, and the frame being
+        the ``repeated``-th in a row identical to the one before it."""
         cfg = self.config
-        unconfirmed = 0 < cfg.max_coast_frames <= coasting
+        unconfirmed = 0 < cfg.max_coast_frames <= coasting or 0 < cfg.max_repeated_frames <= repeated
         self._bad = self._bad + 1 if best_likelihood < cfg.lost_likelihood else 0
         self._good = self._good + 1 if best_likelihood >= cfg.acquire_likelihood and not unconfirmed else 0
         if self._bad >= cfg.lost_frames:

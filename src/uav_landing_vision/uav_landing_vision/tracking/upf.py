@@ -337,6 +337,8 @@ class Tracker:
         self._anchor: float | None = None  # this frame's boosted depth z_b (depth_prior), None: no prior
         self._turn_anchor: np.ndarray | None = None  # last refined rotation (rotation_prior), None: no prior
         self._coasting = 0  # frames in a row without boosted hypotheses (coasting_covariance)
+        self._last_frame: np.ndarray | None = None  # the last frame stepped, to tell a repeated one
+        self._repeated = 0  # frames in a row identical to the one before them (track_state)
         self._last_stamp_ns: int | None = None  # of the last frame stepped since the last reset
         self.window = RotationWindow(config.rotation_window, 1.5 * config.motion.dt, config.rotation_window_max_turn_deg)
 
@@ -355,6 +357,7 @@ class Tracker:
         stamp (a new time-line)."""
         self._drop_track()
         self._last_stamp_ns = None
+        self._last_frame, self._repeated = None, 0
 
     def _drop_track(self) -> None:
         """Forget the track (LOST); frames must still come after the last one."""
@@ -379,6 +382,7 @@ class Tracker:
                                  self.config.motion.dt)
         self._last_stamp_ns = int(stamp_ns)
         self._coasting = 0 if new is not None else self._coasting + 1
+        self._count_repeats(frame)
         self._anchor = self._boosted_depth(new)
         mixed = self._mix(new, steps)
         clock.lap("proposal")
@@ -522,7 +526,7 @@ class Tracker:
         order = np.argsort(-particles.weight, kind="stable")
         particles = particles.take(order)
         best_w = float(particles.weight[0] / self._prior(particles.take([0]))[0])  # the likelihood alone
-        state = self.monitor.update(best_w, self._coasting)
+        state = self.monitor.update(best_w, self._coasting, self._repeated)
         if self.filters is not None:
             self.filters.take(particles.state["slot"])
             self.filters.recentre(particles.pos, particles.quat)
@@ -551,6 +555,12 @@ class Tracker:
                                        np.radians(cfg.covariance_coast_deg))
         clock.lap("output")
         return TrackResult(stamp_ns, state, pos, quat, cov, best_w, n_eff, clock.ms, particles)
+
+    def _count_repeats(self, frame: np.ndarray) -> None:
+        """Count the frames in a row identical, pixel for pixel, to the one before (a frozen camera)."""
+        same = self._last_frame is not None and np.array_equal(frame, self._last_frame)
+        self._repeated = self._repeated + 1 if same else 0
+        self._last_frame = np.array(frame, copy=True)
 
     def _next_turn_anchor(self, pos: np.ndarray, quat: np.ndarray) -> np.ndarray | None:
         """The rotation prior's anchor for the next frame: this frame's refined rotation while the
