@@ -47,10 +47,10 @@ class Rig:
         self.status_pub.publish(TrackerStatus(state=state))
         assert self.ros.spin_until(lambda: self.node.counters["status_received"] > before)
 
-    def pose(self, x=0.5, y=-2.0, z=30.0, quat=(0.0, 0.0, 0.0, 1.0)):
+    def pose(self, x=0.5, y=-2.0, z=30.0, quat=(0.0, 0.0, 0.0, 1.0), frame_id="camera_optical_frame"):
         msg = PoseWithCovarianceStamped()
         msg.header.stamp = self.ros.probe.get_clock().now().to_msg()
-        msg.header.frame_id = "camera_optical_frame"
+        msg.header.frame_id = frame_id
         p, q = msg.pose.pose.position, msg.pose.pose.orientation
         p.x, p.y, p.z = x, y, z
         q.x, q.y, q.z, q.w = quat
@@ -188,6 +188,8 @@ def test_malformed_poses_and_states_are_dropped(ros, mavlink_receiver):
         (rig.pose(x=float("nan")), "pose position must be 3 finite numbers"),
         (rig.pose(quat=(0.0, 0.0, 0.0, 0.0)), "pose quaternion must be a finite unit"),
         (rig.pose(quat=(float("nan"), 0.0, 0.0, 1.0)), "pose quaternion must be a finite unit"),
+        (rig.pose(frame_id="mast_camera_optical_frame"), "in frame 'mast_camera_optical_frame', but the camera mount"),
+        (rig.pose(frame_id=""), "in frame '', but the camera mount"),
     ]:
         before = rig.node.counters["dropped"]
         rig.pose_pub.publish(bad)

@@ -63,6 +63,7 @@ def edit(path: str, value):
         ("mavlink.signing_link_id", 256, "signing_link_id must be in 0..255"),
         ("mavlink.connection", " ", "connection"),
         ("camera.position_m", [0.0, 1.0], "expected 3 values"),
+        ("camera.frame_id", " ", "camera.frame_id must not be empty"),
         ("net_position_m", [0.0, math.nan, 0.0], "finite"),
         ("cone.alpha2_deg", 7.0, "alpha2_deg < glide_slope_deg"),
         ("cone.beta2_deg", 180.0, "beta2_deg"),

@@ -21,8 +21,13 @@ Vec3 = tuple[float, float, float]
 
 @dataclass(frozen=True)
 class CameraMountConfig:
+    frame_id: str  # the camera's optical frame, as its images (hence the tracker's poses) name it
     position_m: Vec3  # optical centre in the ship frame (x bow, y starboard, z down)
     rpy_deg: Vec3  # Z-Y-X roll, pitch, yaw of the camera mount in the ship frame
+
+    def __post_init__(self):
+        if not self.frame_id.strip():
+            raise ValueError("camera.frame_id must not be empty")
 
     @property
     def rpy(self) -> Vec3:

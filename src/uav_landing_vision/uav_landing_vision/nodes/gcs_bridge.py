@@ -6,8 +6,9 @@ both reliable; every ``1 / mavlink.rate_hz`` seconds of node time (sim time with
 and publishes its ``LandingGuidance`` (frame ``landing``: x bow, y starboard, z down, origin at
 the net), stamped with its pose's header stamp as received (the core's float seconds cannot hold
 an epoch stamp to the nanosecond) or, without a fresh pose, the tick's time. Parameters: ``config/gcs_bridge.yaml``, validated into ``gcs.GcsBridgeConfig``.
-A malformed pose (NaN, non-unit quaternion, bad covariance) or an unknown tracker state is
-logged and dropped; no position is sent for it. So are every pose and status while
+A malformed pose (NaN, non-unit quaternion, bad covariance), a pose in a frame other than the
+camera's (``camera.frame_id``: the mount describes that camera only) or an unknown tracker state
+is logged and dropped; no position is sent for it. So are every pose and status while
 ``uav/pose`` or ``uav/tracker_status`` has more than one publisher (a second tracker or graph on
 the domain, a bag replayed with its recorded poses): a status could then vouch for another
 tracker's pose. The service ``~/reset`` (std_srvs/Trigger) is the
@@ -63,6 +64,10 @@ class GcsBridgeNode(LandingNode):
         self.counters["received"] += 1
         if conflict := self._second_tracker():
             self.drop(f"uav/pose: {conflict}")
+            return
+        if msg.header.frame_id != self.config.camera.frame_id:
+            self.drop(f"uav/pose rejected: in frame '{msg.header.frame_id}', but the camera mount (camera.frame_id) "
+                      f"is that of '{self.config.camera.frame_id}'")
             return
         p, q = msg.pose.pose.position, msg.pose.pose.orientation
         try:
