@@ -19,12 +19,13 @@ from uav_landing_vision.tracking.upf import load_tracker_config
 
 REPO = Path(__file__).parents[2]
 FRAMES = 60
-# Measured with the shipped models: medians 0.89 m and 3.84°, no frame lost (3.76° with the
-# two-frame rotation window; 0.72 m and 5.98° before the UAV banked into its turns; 4.70 m and
-# 12.1° with the previous detector, before boosting grew the ROIs). The bounds leave a margin for
-# another machine's float rounding and catch a pipeline that lost the UAV.
-TRANSLATION_MEDIAN_M = 1.5
-ROTATION_MEDIAN_DEG = 9.0
+# Measured with the shipped models (`uav-landing evaluate` on this landing): C4N2 medians 0.62 m
+# and 3.00°, no frame lost. So close in (30 -> 18 m) boosting alone does as well (C1N0 0.55 m,
+# 2.63°; C3N0, C4N0, C2N0 0.40-0.57 m, 2.3-3.0°), so these bounds catch a pipeline that lost or
+# misplaces the UAV (the previous detector, before boosting grew its ROIs: 4.70 m, 12.1°), not a
+# weaker filter: that the graph runs the tracker is the equality with the core below.
+TRANSLATION_MEDIAN_M = 1.0
+ROTATION_MEDIAN_DEG = 5.0
 GRAPH_TIMEOUT_S = 420.0
 # The shipped normal scenario, the approach starting 30-32 m out (the first 60 frames reach ~18 m).
 SCENARIO = """
