@@ -1,11 +1,58 @@
 """Shared pytest fixtures."""
 
+import fcntl
 import os
+import tempfile
+import time
+from pathlib import Path
 
 import pytest
 
+DOMAINS = range(1, 101)  # ROS 2 domain ids 1..100; 0 is every graph's default
+PROBE_S = 1.0  # long enough for DDS participants on the domain to announce themselves
+
+
+def _domain_in_use(domain_id: int) -> bool:
+    """Whether any other DDS participant with a ROS node shows on ``domain_id`` (a live graph, another test run)."""
+    import rclpy
+    from rclpy.node import Node
+
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=domain_id)
+    try:
+        node = Node("domain_probe", context=context)
+        deadline = time.monotonic() + PROBE_S
+        others = []
+        while time.monotonic() < deadline and not others:
+            time.sleep(0.1)
+            others = [name for name in node.get_node_names() if name != "domain_probe"]
+        node.destroy_node()
+        return bool(others)
+    finally:
+        context.try_shutdown()
+
 
 @pytest.fixture(scope="session")
-def ros_domain_id() -> int:
-    """A DDS domain of this test run's own, so that parallel runs on one machine don't cross."""
-    return 1 + os.getpid() % 100
+def ros_domain_id():
+    """A DDS domain of this test run's own: not the shell's ``ROS_DOMAIN_ID`` (a live graph's),
+    locked against other test runs on this machine, and with no ROS node on it when claimed, so
+    that a test's poses never reach a running system's GCS bridge, nor another run's."""
+    live = os.environ.get("ROS_DOMAIN_ID", "0")
+    start = os.getpid() % len(DOMAINS)
+    for k in range(len(DOMAINS)):
+        domain_id = DOMAINS[(start + k) % len(DOMAINS)]
+        if str(domain_id) == live:
+            continue
+        lock = (Path(tempfile.gettempdir()) / f"uav_landing_test_domain_{domain_id}.lock").open("w")
+        try:
+            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            lock.close()
+            continue
+        if _domain_in_use(domain_id):
+            lock.close()
+            continue
+        yield domain_id
+        lock.close()
+        return
+    pytest.fail(f"no free ROS domain among {DOMAINS.start}..{DOMAINS.stop - 1}")
