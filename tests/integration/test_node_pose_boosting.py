@@ -215,6 +215,17 @@ def test_a_raw_camera_info_on_the_rectified_topic_is_refused(ros, small_database
     assert rig.send(frame_msg(0), detections_msg(0, [(*true_roi(0), 0.9)])) is not None
 
 
+def test_a_frame_dropped_for_want_of_calibration_says_why_the_camera_info_was_refused(ros, small_database):
+    rig = Rig(ros, small_database, Parameter("node.cache_size", value=1))
+    rig.info_pub.publish(camera_info_msg(dataclasses.replace(CAMERA, dist=np.array([-0.2, 0.05, 0.0, 0.0, 0.0]))))
+    assert ros.spin_until(lambda: rig.node.counters["dropped"] == 1)
+    for k in range(2):
+        rig.image_pub.publish(frame_msg(k))
+        rig.det_pub.publish(detections_msg(k, [(*true_roi(k), 0.9)]))
+    assert ros.spin_until(lambda: rig.node.counters["dropped"] == 2)
+    assert "(the latest camera_info was refused: distortion [-0.2, 0.05, 0.0, 0.0, 0.0] in the camera_info" in rig.node.last_error
+
+
 def test_frames_before_the_first_calibration_are_held_as_many_as_the_cache(ros, small_database):
     rig = Rig(ros, small_database, Parameter("node.cache_size", value=2))
     for k in range(3):

@@ -256,6 +256,17 @@ def test_frames_resuming_after_a_gap_longer_than_the_prediction_restart_the_trac
     assert status.state == TrackerStatus.ACQUIRING and ros.spin_until(lambda: rig.pose_of(161) is not None)
 
 
+def test_a_frame_dropped_for_want_of_calibration_says_why_the_camera_info_was_refused(ros):
+    rig = Rig(ros, Parameter("node.cache_size", value=1))
+    rig.info_pub.publish(camera_info_msg(dataclasses.replace(CAMERA, dist=np.array([-0.2, 0.05, 0.0, 0.0, 0.0]))))
+    assert ros.spin_until(lambda: rig.node.counters["dropped"] == 1)
+    for k in range(2):
+        rig.image_pub.publish(frame_msg(k))
+        rig.hyp_pub.publish(hypotheses_msg(k))
+    assert ros.spin_until(lambda: rig.node.counters["dropped"] == 2)
+    assert "no camera/camera_info_rect (the latest camera_info was refused: distortion [-0.2" in rig.node.last_error
+
+
 def test_a_calibration_it_cannot_use_is_dropped_and_the_last_one_kept(ros, generator, monkeypatch):
     rig = Rig(ros)
     rig.send_info()

@@ -80,6 +80,22 @@ def test_image_before_any_camera_info_is_dropped_then_tracking_starts(ros):
     assert rig.node.counters["dropped"] == 1
 
 
+def test_an_image_dropped_for_want_of_calibration_says_why_the_camera_info_was_refused(ros):
+    """A driver publishes each image before its camera_info (image_transport's CameraPublisher does),
+    and one drop a second is logged: had the image's drop not named the refusal (K all zeros: an
+    uncalibrated camera), "image before any camera_info" would have been the only line logged."""
+    rig = Rig(ros)
+    uncalibrated = camera_info_msg(SMALL_CAMERA)
+    uncalibrated.k = [0.0] * 9
+    rig.info_pub.publish(uncalibrated)
+    assert ros.spin_until(lambda: rig.node.counters["dropped"] == 1)
+    assert rig.send_image(image_msg(rgb_frame(SMALL_CAMERA), "rgb8")) is None
+    assert rig.node.last_error == ("image before any camera_info (the latest camera_info was refused: "
+                                   "camera_info K is missing (all zeros means an uncalibrated camera))")
+    rig.send_info(SMALL_CAMERA)
+    assert rig.send_image(image_msg(rgb_frame(SMALL_CAMERA), "rgb8")) is not None
+
+
 def test_malformed_images_are_dropped_and_the_node_keeps_working(ros):
     rig = Rig(ros)
     rig.send_info(SMALL_CAMERA)

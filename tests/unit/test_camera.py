@@ -246,7 +246,25 @@ def test_four_distortion_coefficients_mean_k3_zero():
     np.testing.assert_array_equal(camera.dist, [-0.2, 0.05, 0.001, -0.002, 0.0])
 
 
-@pytest.mark.parametrize("model", ["", "plumb_bob"])
-def test_a_camera_info_without_distortion_coefficients_has_none(model):
-    camera = camera_from_info_fields(640, 480, model, [], GENERAL.K.ravel())
+@pytest.mark.parametrize("model, d", [("", []), ("", [0.0] * 5), ("plumb_bob", [])])
+def test_a_camera_info_without_distortion_coefficients_has_none(model, d):
+    camera = camera_from_info_fields(640, 480, model, d, GENERAL.K.ravel())
     np.testing.assert_array_equal(camera.dist, np.zeros(5))
+
+
+def test_coefficients_without_a_distortion_model_are_refused(tmp_path):
+    """An empty distortion_model does not say how to read D: four coefficients are also an
+    equidistant (fisheye) lens's, whose rectification read as plumb_bob is off by >100 px."""
+    fisheye = [-0.05, 0.01, -0.002, 0.0005]
+    K = np.array([[600.0, 0.0, 639.5], [0.0, 600.0, 359.5], [0.0, 0.0, 1.0]])
+    as_fisheye = cv2.fisheye.initUndistortRectifyMap(K, np.array(fisheye), np.eye(3), K, (1280, 720), cv2.CV_32FC1)
+    as_plumb_bob = cv2.initUndistortRectifyMap(K, np.array(fisheye), None, K, (1280, 720), cv2.CV_32FC1)
+    assert np.hypot(*(a - b for a, b in zip(as_fisheye, as_plumb_bob)))[100, 100] > 100.0
+    with pytest.raises(CameraInfoError, match="4 non-zero distortion coefficients but no distortion_model"):
+        camera_from_info_fields(1280, 720, "", fisheye, K.ravel())
+    path = tmp_path / "camera.yaml"
+    path.write_text("image_width: 640\nimage_height: 480\ndistortion_model: ''\n"
+                    "camera_matrix: {rows: 3, cols: 3, data: [500, 0, 320, 0, 500, 240, 0, 0, 1]}\n"
+                    "distortion_coefficients: {rows: 1, cols: 4, data: [-0.05, 0.01, -0.002, 0.0005]}\n")
+    with pytest.raises(CameraInfoError, match="no distortion_model"):
+        load_camera_info_yaml(path)

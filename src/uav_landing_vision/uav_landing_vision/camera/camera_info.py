@@ -24,6 +24,16 @@ class CameraInfoError(ValueError):
     """A camera calibration (file or message) that cannot describe this camera."""
 
 
+def _check_distortion_model(model, d: np.ndarray) -> None:
+    """Refuse a distortion model other than plumb_bob, and non-zero coefficients with no model
+    (``""``) to say how to read them: four are also an equidistant (fisheye) lens's."""
+    if model == "" and np.any(d != 0):
+        raise CameraInfoError(f"{np.count_nonzero(d)} non-zero distortion coefficients but no distortion_model "
+                              f"to say how to read them; set it (only {SUPPORTED_DISTORTION} is supported)")
+    if model not in (SUPPORTED_DISTORTION, ""):
+        raise CameraInfoError(f"distortion model '{model}' is not supported (only {SUPPORTED_DISTORTION})")
+
+
 def _matrix(doc: dict, key: str, rows: int, cols: int, source: str) -> np.ndarray:
     entry = doc.get(key)
     if not isinstance(entry, dict) or "data" not in entry:
@@ -66,14 +76,15 @@ def load_camera_info_yaml(path, frame_id: str = DEFAULT_FRAME_ID) -> CameraModel
     unknown = set(doc) - _YAML_KEYS
     if unknown:
         raise CameraInfoError(f"{path}: unknown keys {sorted(unknown)}")
-    model = doc.get("distortion_model", SUPPORTED_DISTORTION)
-    if model != SUPPORTED_DISTORTION:
-        raise CameraInfoError(f"{path}: distortion model '{model}' is not supported (only {SUPPORTED_DISTORTION})")
     K = _matrix(doc, "camera_matrix", 3, 3, str(path))
     dist_entry = doc.get("distortion_coefficients", {"data": []})  # none given: no distortion
     if not isinstance(dist_entry, dict) or "data" not in dist_entry:
         raise CameraInfoError(f"{path}: 'distortion_coefficients' must be a mapping with rows, cols and data")
     dist = _numbers(dist_entry["data"], "distortion_coefficients", str(path))
+    try:
+        _check_distortion_model(doc.get("distortion_model", SUPPORTED_DISTORTION), dist)
+    except CameraInfoError as exc:
+        raise CameraInfoError(f"{path}: {exc}") from exc
     if "rectification_matrix" in doc:
         R = _matrix(doc, "rectification_matrix", 3, 3, str(path))
         if not np.allclose(R, np.eye(3)):
@@ -140,8 +151,7 @@ def camera_from_info_fields(
     width, height, distortion_model, d, k, r=None, frame_id: str = DEFAULT_FRAME_ID
 ) -> CameraModel:
     """Validate ``sensor_msgs/CameraInfo`` fields and build the camera; :class:`CameraInfoError` if unusable."""
-    if distortion_model not in (SUPPORTED_DISTORTION, ""):
-        raise CameraInfoError(f"distortion model '{distortion_model}' is not supported (only {SUPPORTED_DISTORTION})")
+    _check_distortion_model(distortion_model, np.asarray(d, dtype=float))
     k = np.asarray(k, dtype=float)
     if k.size != 9 or not np.any(k):
         raise CameraInfoError("camera_info K is missing (all zeros means an uncalibrated camera)")

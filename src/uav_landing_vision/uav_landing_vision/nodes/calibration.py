@@ -10,6 +10,7 @@ class Calibration:
     def __init__(self, rectified: bool = False):
         self.camera: CameraModel | None = None
         self.rectified = rectified
+        self.refused = ""  # why the latest camera_info was refused; "" once one is taken
         self._key = None
 
     def update(self, msg, use=None) -> bool:
@@ -25,11 +26,24 @@ class Calibration:
                msg.binning_x, msg.binning_y, roi.x_offset, roi.y_offset, roi.width, roi.height)
         if key == self._key:
             return False
+        try:
+            camera = self._camera(msg, use)
+        except CameraInfoError as exc:
+            self.refused = str(exc)
+            raise
+        self._key, self.camera, self.refused = key, camera, ""
+        return True
+
+    def waiting_for(self, what: str) -> str:
+        """``what`` a frame without a camera waits for, and why the latest camera_info was refused:
+        a node logs one drop a second, and its frames' drops could hide the refusal's."""
+        return f"{what} (the latest camera_info was refused: {self.refused})" if self.refused else what
+
+    def _camera(self, msg, use) -> CameraModel:
         camera = camera_from_info_msg(msg)
         if self.rectified and camera.is_distorted:
             raise CameraInfoError(f"distortion {camera.dist.tolist()} in the camera_info of a rectified image "
                                   "(expected none, as undistort's camera/camera_info_rect has)")
         if use is not None:
             use(camera)
-        self._key, self.camera = key, camera
-        return True
+        return camera

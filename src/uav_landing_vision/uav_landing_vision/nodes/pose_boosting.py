@@ -132,7 +132,7 @@ class PoseBoostingNode(LandingNode):
     def _boost(self, image: Image, frame: np.ndarray, detections: DetectionArray) -> None:
         if self._generator is None:
             self.hold(self._uncalibrated, (image, frame, detections), self.node_config.cache_size,
-                      "no calibration the pose database matches (camera/camera_info_rect)")
+                      self._calibration.waiting_for("no calibration the pose database matches (camera/camera_info_rect)"))
             return
         roi = self._best_roi(detections, image.width, image.height)
         try:

@@ -202,7 +202,7 @@ class TrackerNode(LandingNode):
         tracker = self._tracker
         if tracker is None:
             self.hold(self._uncalibrated, (image, frame, boosted), self.node_config.cache_size,
-                      "no camera/camera_info_rect")
+                      self._calibration.waiting_for("no camera/camera_info_rect"))
             return
         if (image.width, image.height) != (self._renderer.width, self._renderer.height):
             self.drop(f"image is {image.width}x{image.height} but the calibration is {self._renderer.width}x{self._renderer.height}")

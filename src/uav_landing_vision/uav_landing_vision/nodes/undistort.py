@@ -81,7 +81,7 @@ class Undistort(LandingNode):
         self.counters["received"] += 1
         camera = self._camera
         if camera is None:
-            self.drop("image before any camera_info")
+            self.drop(self._calibration.waiting_for("image before any camera_info"))
             return
         if (msg.width, msg.height) != (camera.width, camera.height):
             self.drop(f"image is {msg.width}x{msg.height} but the calibration is {camera.width}x{camera.height}")
