@@ -16,6 +16,8 @@ from rclpy.parameter import Parameter
 from test_node_common import ros  # noqa: F401 (fixture)
 
 from uav_landing_vision.config import ConfigError
+from uav_landing_vision.nodes import evaluator as evaluator_node
+from uav_landing_vision.nodes.base import stamp_ns
 from uav_landing_vision.nodes.evaluator import EvaluatorNode, run_until_done
 from uav_landing_vision.nodes.poses import numpy_to_pose
 from uav_landing_vision.nodes.qos import RELIABLE_QOS
@@ -156,6 +158,31 @@ def test_sigint_writes_the_report_and_exits_cleanly(ros, ros_domain_id, tmp_path
     summary = json.loads((tmp_path / "report" / "summary.json").read_text())
     assert summary["frames"] == 3 and summary["variants"]["tracker"]["lost_frames_pct"] == 0.0, output
     assert "3 ground-truth frames, 3 with a pose" in output
+
+
+def test_poses_without_ground_truth_are_bounded(ros, tmp_path):
+    """A live graph runs the evaluator too, and no ground truth ever comes: it kept every pose
+    (about 1 KB each) for the whole run. Poses with their ground truth are all kept."""
+    node = Rig(ros, tmp_path).node
+    limit = evaluator_node.POSES_WITHOUT_TRUTH
+
+    def stamped(msg, k: int):
+        msg.header.stamp.sec, msg.header.stamp.nanosec = 100 + k // 30, (k % 30) * 33_000_000
+        return msg
+
+    for k in range(limit + 50):
+        node._on_pose(stamped(pose_msg(0), k))
+    assert len(node.estimates) == len(node.covariances) == limit
+    assert min(node.estimates) == stamp_ns(stamped(pose_msg(0), 50).header.stamp)  # the newest are kept
+    node._on_truth(stamped(truth_msg(0), limit + 49))  # a late ground truth still finds its pose
+    for k in range(limit + 50, 2 * limit + 100):
+        node._on_truth(stamped(truth_msg(0), k))
+        node._on_pose(stamped(pose_msg(0), k))
+    assert len(node.estimates) == len(node.covariances) == 2 * limit + 50
+    assert node.counters["poses_without_truth_dropped"] == 50
+    frames = len(node.truth)
+    summary = json.loads((node.write() / "summary.json").read_text())
+    assert summary["frames"] == frames and summary["variants"]["C4N2"]["lost_frames_pct"] == 0.0
 
 
 @pytest.mark.parametrize(

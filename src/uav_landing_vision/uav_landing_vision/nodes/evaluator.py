@@ -2,7 +2,9 @@
 
 Subscribes ``uav/pose`` (PoseWithCovarianceStamped) and ``uav/ground_truth`` (PoseStamped),
 both reliable, and pairs them by exact ``header.stamp`` (``evaluation.align``); a ground-truth
-frame without a pose counts as lost. The report is written to ``out_dir`` when the node ends:
+frame without a pose counts as lost. Of the poses without ground truth only the newest
+:data:`POSES_WITHOUT_TRUTH` are kept (a live graph, which has none, runs for hours). The report
+is written to ``out_dir`` when the node ends:
 
 - on shutdown (Ctrl-C, SIGTERM; e.g. when ``uav-landing graph`` stops after the bag), or
 - when done: ``frames`` > 0 ground-truth frames have been received and then ``settle_s``
@@ -47,6 +49,9 @@ from .poses import pose_to_numpy
 from .qos import RELIABLE_QOS
 
 SPIN_S = 0.1
+# Poses kept while their ground truth has not come (the newest): a live graph runs this node too, and
+# without ground truth it would hold every pose of a run of hours. A replay's truth precedes its pose.
+POSES_WITHOUT_TRUTH = 300
 
 
 @dataclass(frozen=True)
@@ -77,6 +82,7 @@ class EvaluatorNode(LandingNode):
         self.truth: dict[int, tuple] = {}
         self.estimates: dict[int, tuple] = {}
         self.covariances: dict[int, np.ndarray] = {}
+        self._without_truth: dict[int, None] = {}  # stamps of the poses whose ground truth has not come, oldest first
         self._last_truth = None  # monotonic time of the last ground truth
         self.report_dir: Path | None = None
         self.create_subscription(PoseWithCovarianceStamped, "uav/pose", self._on_pose, RELIABLE_QOS)
@@ -99,10 +105,23 @@ class EvaluatorNode(LandingNode):
         stamp = stamp_ns(msg.header.stamp)
         if self._store(self.estimates, "uav/pose", stamp, msg.pose.pose):
             self.covariances[stamp] = np.asarray(msg.pose.covariance, float).reshape(6, 6)
+            if stamp not in self.truth:
+                self._hold_without_truth(stamp)
+
+    def _hold_without_truth(self, stamp: int) -> None:
+        """Keep the pose of ``stamp`` among the last :data:`POSES_WITHOUT_TRUTH` without ground truth;
+        the oldest beyond them is forgotten (counted)."""
+        self._without_truth[stamp] = None
+        while len(self._without_truth) > POSES_WITHOUT_TRUTH:
+            oldest = next(iter(self._without_truth))
+            del self._without_truth[oldest], self.estimates[oldest], self.covariances[oldest]
+            self.counters["poses_without_truth_dropped"] += 1
 
     def _on_truth(self, msg: PoseStamped) -> None:
         self.counters["truth_received"] += 1
-        if self._store(self.truth, "uav/ground_truth", stamp_ns(msg.header.stamp), msg.pose):
+        stamp = stamp_ns(msg.header.stamp)
+        if self._store(self.truth, "uav/ground_truth", stamp, msg.pose):
+            self._without_truth.pop(stamp, None)
             self._last_truth = time.monotonic()
 
     def done(self) -> bool:
