@@ -205,3 +205,26 @@ def test_projected_roi_holds_the_projected_model(bag):
     assert (x, y, x + w - 1, y + h - 1) == (*pixels.min(axis=0), *pixels.max(axis=0))
     assert w < 0.5 * camera.width
     assert projected_roi(camera, vertices, truth.quat[0], -truth.trans[0]) is None  # behind the camera
+
+
+def test_the_run_releases_its_renderer_however_it_ends(bag, monkeypatch):
+    """moderngl frees no GL object on garbage collection: a run that kept its renderer leaked a
+    2048x1024 atlas and three frame-sized targets per call, ending well or not."""
+    import importlib
+
+    from uav_landing_vision.render import Renderer
+
+    evaluate = importlib.import_module("uav_landing_vision.tracking.evaluate")
+    released = []
+    real_release = Renderer.release
+    monkeypatch.setattr(Renderer, "release", lambda self: released.append(self) or real_release(self))
+    evaluate.evaluate_bag(bag, ["C1N0"], particles=30, roi_source="oracle", frames=2, progress=False)
+    assert len(released) == 1
+
+    def broken_step(*args, **kwargs):
+        raise RuntimeError("a tracker failing mid-run")
+
+    monkeypatch.setattr(evaluate.Tracker, "step", broken_step)
+    with pytest.raises(RuntimeError, match="mid-run"):
+        evaluate.evaluate_bag(bag, ["C1N0"], particles=30, roi_source="oracle", frames=2, progress=False)
+    assert len(released) == 2

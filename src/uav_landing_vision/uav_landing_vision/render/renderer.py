@@ -115,6 +115,12 @@ class Renderer:
         self._rgba = ctx.framebuffer(color_attachments=[ctx.renderbuffer(size, components=4, dtype="f1")])
         self._rgba_buf = np.zeros((self.height, self.width, 4), dtype=np.uint8)
 
+    def __enter__(self) -> "Renderer":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.release()
+
     def release(self) -> None:
         """Free this renderer's GL objects (moderngl frees none when they are garbage collected),
         also those of one whose construction failed partway; the renderer is unusable afterwards.

@@ -129,53 +129,54 @@ def evaluate_bag(bag, variants, *, particles: int | None = None, metric: str | N
         shipped_config(HypothesisConfig, "pose_boosting"), particles=particles, kept=particles - configs[names[0]].boosted),
         camera)
     renderer = Renderer(camera, fixed_wing_mesh("low"), tile=configs[names[0]].tile, max_batch=max(map(render_batch, configs.values())))
-    trackers = {n: Tracker(c, camera, renderer) for n, c in configs.items()}
-    track_box_config = shipped_config(TrackBoxConfig, "detector", "track_box")
-    track_boxes = {n: TrackBox(track_box_config, vertices) for n in names}
-    index = {int(s): i for i, s in enumerate(truth.stamps_ns)}
+    with renderer:  # released however the run ends: moderngl frees nothing on garbage collection
+        trackers = {n: Tracker(c, camera, renderer) for n, c in configs.items()}
+        track_box_config = shipped_config(TrackBoxConfig, "detector", "track_box")
+        track_boxes = {n: TrackBox(track_box_config, vertices) for n in names}
+        index = {int(s): i for i, s in enumerate(truth.stamps_ns)}
 
-    est_t = {n: np.full((count, 3), np.nan) for n in names}
-    est_q = {n: np.full((count, 4), np.nan) for n in names}
-    est_cov = {n: np.full((count, 6, 6), np.nan) for n in names}
-    states = {n: np.zeros(count, int) for n in names}
-    ms = {n: {s: 0.0 for s in SHARED_STAGES + STAGES} for n in names}
-    gt_t, gt_q = np.full((count, 3), np.nan), np.full((count, 4), np.nan)
-    done = 0
-    for k, (stamp, raw) in enumerate(_frames(iter_frames(bag), start, count, progress)):
-        clock = time.perf_counter()
-        frame = cv2.remap(raw, maps[0], maps[1], cv2.INTER_LINEAR)
-        t_undistort = time.perf_counter()
-        i = index.get(int(stamp))
-        if i is None:
-            raise EvaluationError(f"{bag}: frame stamp {stamp} has no ground-truth pose")
-        gt_t[k], gt_q[k] = truth.trans[i], truth.quat[i]
-        roi = rois(frame, k) if rois is not None else projected_roi(camera, vertices, truth.quat[i], truth.trans[i])
-        t_roi = time.perf_counter()
-        hyp = None if roi is None else boost.generate(frame, roi, count=particles)
-        t_boost = time.perf_counter()
-        shared = {"undistort": t_undistort - clock, "roi": t_roi - t_undistort, "boosting": t_boost - t_roi}
-        for n, tracker in trackers.items():
-            own_boost = 0.0
-            if roi is not None:
-                track_boxes[n].detected()
-                own = hyp
-            else:
-                t0 = time.perf_counter()
-                box = track_boxes[n].roi(camera, int(stamp))
-                own = None if box is None else boost.generate(frame, box, count=particles)
-                own_boost = time.perf_counter() - t0
-            res = tracker.step(frame, int(stamp), own)
-            if res.has_pose:
-                track_boxes[n].set_pose(int(stamp), res.position, res.quat)
-            if res.has_pose and res.state != TrackState.LOST:
-                est_t[n][k], est_q[n][k], est_cov[n][k] = res.position, res.quat, res.covariance
-            states[n][k] = int(res.state)
-            for s, v in shared.items():
-                ms[n][s] += 1e3 * v
-            ms[n]["boosting"] += 1e3 * own_boost
-            for s, v in res.stage_ms.items():
-                ms[n][s] += v
-        done = k + 1
+        est_t = {n: np.full((count, 3), np.nan) for n in names}
+        est_q = {n: np.full((count, 4), np.nan) for n in names}
+        est_cov = {n: np.full((count, 6, 6), np.nan) for n in names}
+        states = {n: np.zeros(count, int) for n in names}
+        ms = {n: {s: 0.0 for s in SHARED_STAGES + STAGES} for n in names}
+        gt_t, gt_q = np.full((count, 3), np.nan), np.full((count, 4), np.nan)
+        done = 0
+        for k, (stamp, raw) in enumerate(_frames(iter_frames(bag), start, count, progress)):
+            clock = time.perf_counter()
+            frame = cv2.remap(raw, maps[0], maps[1], cv2.INTER_LINEAR)
+            t_undistort = time.perf_counter()
+            i = index.get(int(stamp))
+            if i is None:
+                raise EvaluationError(f"{bag}: frame stamp {stamp} has no ground-truth pose")
+            gt_t[k], gt_q[k] = truth.trans[i], truth.quat[i]
+            roi = rois(frame, k) if rois is not None else projected_roi(camera, vertices, truth.quat[i], truth.trans[i])
+            t_roi = time.perf_counter()
+            hyp = None if roi is None else boost.generate(frame, roi, count=particles)
+            t_boost = time.perf_counter()
+            shared = {"undistort": t_undistort - clock, "roi": t_roi - t_undistort, "boosting": t_boost - t_roi}
+            for n, tracker in trackers.items():
+                own_boost = 0.0
+                if roi is not None:
+                    track_boxes[n].detected()
+                    own = hyp
+                else:
+                    t0 = time.perf_counter()
+                    box = track_boxes[n].roi(camera, int(stamp))
+                    own = None if box is None else boost.generate(frame, box, count=particles)
+                    own_boost = time.perf_counter() - t0
+                res = tracker.step(frame, int(stamp), own)
+                if res.has_pose:
+                    track_boxes[n].set_pose(int(stamp), res.position, res.quat)
+                if res.has_pose and res.state != TrackState.LOST:
+                    est_t[n][k], est_q[n][k], est_cov[n][k] = res.position, res.quat, res.covariance
+                states[n][k] = int(res.state)
+                for s, v in shared.items():
+                    ms[n][s] += 1e3 * v
+                ms[n]["boosting"] += 1e3 * own_boost
+                for s, v in res.stage_ms.items():
+                    ms[n][s] += v
+            done = k + 1
     if done == 0:
         raise EvaluationError(f"{bag}: no frames")
     sl = slice(0, done)
