@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from rclpy.serialization import serialize_message
-from rosbags.rosbag2 import Writer
+from rosbags.rosbag2 import CompressionMode, Writer
 from rosbags.typesys import Stores, get_typestore
 from sensor_msgs.msg import Image
 from test_node_common import SMALL_CAMERA, frame_entries, rgb_frame, ros, write_bag  # noqa: F401 (fixture)
@@ -43,10 +43,19 @@ def _finish(proc: subprocess.Popen) -> int:
             proc.kill()
 
 
-def test_bag_replayed_through_undistort_in_separate_processes(ros, ros_domain_id, tmp_path):
-    """Paced on the probe's acknowledgement: every frame reaches the probe, rectified, then the graph stops."""
+DECK_CAM = {"/camera/image_raw": "/deck_cam/image_raw", "/camera/camera_info": "/deck_cam/camera_info"}
+
+
+@pytest.mark.parametrize("remap", [False, True], ids=["camera", "deck_cam-remapped"])
+def test_bag_replayed_through_undistort_in_separate_processes(ros, ros_domain_id, tmp_path, remap):
+    """Paced on the probe's acknowledgement: every frame reaches the probe, rectified, then the
+    graph stops. Also a recording of other topic names, remapped onto the graph's."""
     frames = 8
-    bag = write_bag(tmp_path / "bag", frame_entries(SMALL_CAMERA, frames))
+    entries = frame_entries(SMALL_CAMERA, frames)
+    if remap:
+        entries = [(DECK_CAM[topic], *rest) for topic, *rest in entries]
+    bag = write_bag(tmp_path / "bag", entries)
+    remaps = [a for ours, recorded in DECK_CAM.items() for a in ("--remap", f"{recorded}:={ours}")] if remap else []
     rect = []
     sub = ros.probe.create_subscription(Image, "/camera/image_rect", rect.append, IMAGE_QOS)
     acked = []
@@ -54,7 +63,7 @@ def test_bag_replayed_through_undistort_in_separate_processes(ros, ros_domain_id
     graph = _graph(
         ros_domain_id, "--bag", str(bag), "--nodes", "undistort,bag_player",
         "--param", "bag_player:ack_topic=/test/ack", "--param", "bag_player:ack_type=geometry_msgs/msg/PoseStamped",
-        log=log,
+        *remaps, log=log,
     )
     try:
         # The ack publisher appears only once undistort's output reaches the probe: the player,
@@ -158,14 +167,40 @@ def test_a_node_that_fails_stops_the_graph_with_an_error(ros_domain_id, tmp_path
 
 
 def test_bad_requests_are_refused_before_anything_starts(ros_domain_id, tmp_path):
+    cut_off = write_bag(tmp_path / "cut_off", frame_entries(SMALL_CAMERA, 2), compression=CompressionMode.FILE)
+    packed = next(cut_off.glob("*.zstd"))
+    packed.write_bytes(packed.read_bytes()[: packed.stat().st_size // 2])
     for args, message in [
+        (["--bag", str(cut_off)], f"bag {cut_off} is not a readable rosbag2 bag: "),
         (["--nodes", "localiser"], "unknown node(s) ['localiser']"),
         (["--bag", str(tmp_path / "missing")], "does not exist"),
         (["--param", "undistort=linear"], "expected NODE:KEY=VALUE"),
+        (["--remap", "/deck_cam/image_raw"], "expected FROM:=TO"),
+        (["--remap", "deck_cam/image_raw:=/camera/image_raw"], "absolute topic names"),
     ]:
         log = tmp_path / "graph.log"
         assert _finish(_graph(ros_domain_id, *args, log=log)) == 2
         assert message in log.read_text()
+
+
+def test_a_replay_waits_for_the_links_its_bag_can_bring_up(tmp_path):
+    """Every pipeline link of a bag with ground truth; less it without; all of them (for the
+    player to report) for a bag that cannot be read, e.g. a compressed one cut off."""
+    truth = PoseStamped()
+    truth.header.stamp.sec = 1
+    full = write_bag(tmp_path / "full", frame_entries(SMALL_CAMERA, 1) + [("/uav/ground_truth", "geometry_msgs/msg/PoseStamped", 10**9, truth)])
+    assert graph_module.replay_ready_topics(full) == graph_module.PIPELINE_TOPICS
+    untrue = write_bag(tmp_path / "untrue", frame_entries(SMALL_CAMERA, 1), compression=CompressionMode.FILE)
+    untrue_links = tuple(t for t in graph_module.PIPELINE_TOPICS if t != "/uav/ground_truth")
+    assert graph_module.replay_ready_topics(untrue) == untrue_links
+    packed = next(untrue.glob("*.zstd"))
+    packed.write_bytes(packed.read_bytes()[: packed.stat().st_size // 2])
+    assert graph_module.replay_ready_topics(untrue) == graph_module.PIPELINE_TOPICS
+    deck_cam = write_bag(tmp_path / "deck_cam", [(DECK_CAM[topic], *rest) for topic, *rest in frame_entries(SMALL_CAMERA, 1)])
+    links = tuple(t for t in graph_module.PIPELINE_TOPICS if t not in DECK_CAM and t != "/uav/ground_truth")
+    assert graph_module.replay_ready_topics(deck_cam) == links
+    for remaps in ({v: k for k, v in DECK_CAM.items()}, DECK_CAM):  # played onto the graph's topics, or the graph onto the bag's
+        assert graph_module.replay_ready_topics(deck_cam, remaps) == untrue_links
 
 
 def test_every_graph_node_has_a_module_and_a_parameter_file():
@@ -178,7 +213,7 @@ def test_every_graph_node_has_a_module_and_a_parameter_file():
 
 def _fake_nodes(monkeypatch, scripts: dict) -> None:
     """Each graph node replaced by ``python -c <its script>`` (no ROS)."""
-    monkeypatch.setattr(graph_module, "node_command", lambda name, config_dir, overrides=(): [sys.executable, "-c", scripts[name]])
+    monkeypatch.setattr(graph_module, "node_command", lambda name, *args: [sys.executable, "-c", scripts[name]])
 
 
 @pytest.mark.parametrize("code, expected", [(0, 0), (3, 1)], ids=["clean", "error"])

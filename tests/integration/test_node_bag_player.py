@@ -7,7 +7,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PointStamped, PoseStamped
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
-from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.rosbag2 import CompressionMode, StoragePlugin, Writer
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image
 from test_node_common import SMALL_CAMERA, frame_entries, ros, write_bag  # noqa: F401 (fixture)
@@ -20,7 +20,7 @@ from uav_landing_vision.nodes.qos import RELIABLE_QOS, IMAGE_QOS
 FRAMES = 5
 
 
-def _bag(tmp_path, storage=StoragePlugin.MCAP, frames=FRAMES, extra=()):
+def _bag(tmp_path, storage=StoragePlugin.MCAP, frames=FRAMES, extra=(), compression=None):
     entries = frame_entries(SMALL_CAMERA, frames)
     for i, (_, _, t, _) in enumerate(entries[::2]):
         truth = PoseStamped()
@@ -28,15 +28,15 @@ def _bag(tmp_path, storage=StoragePlugin.MCAP, frames=FRAMES, extra=()):
         truth.pose.position.z = 50.0 - i
         entries.append(("/uav/ground_truth", "geometry_msgs/msg/PoseStamped", t, truth))
     entries = sorted(entries + list(extra), key=lambda e: e[2])  # stable: image before camera_info
-    return write_bag(tmp_path / "bag", entries, storage)
+    return write_bag(tmp_path / "bag", entries, storage, compression)
 
 
 class Playback:
     """A BagPlayer playing in a thread with its own executor, as its main() would."""
 
-    def __init__(self, ros, bag, **params):
+    def __init__(self, ros, bag, cli_args=None, **params):
         overrides = [Parameter("bag", value=str(bag))] + [Parameter(k, value=v) for k, v in params.items()]
-        self.node = BagPlayer(context=ros.context, parameter_overrides=overrides)
+        self.node = BagPlayer(context=ros.context, cli_args=cli_args, parameter_overrides=overrides)
         self.executor = SingleThreadedExecutor(context=ros.context)
         self.executor.add_node(self.node)
         self.result = None
@@ -66,14 +66,17 @@ def playbacks():
         playback.close()
 
 
-@pytest.mark.parametrize("storage", [StoragePlugin.MCAP, StoragePlugin.SQLITE3], ids=["mcap", "sqlite3"])
-def test_timed_playback_publishes_every_topic_with_its_type_and_the_clock(ros, playbacks, tmp_path, storage):
+@pytest.mark.parametrize("storage, compression", [
+    (StoragePlugin.MCAP, None), (StoragePlugin.SQLITE3, None), (StoragePlugin.MCAP, CompressionMode.FILE),
+    (StoragePlugin.SQLITE3, CompressionMode.MESSAGE), (StoragePlugin.MCAP, CompressionMode.STORAGE),
+], ids=["mcap", "sqlite3", "mcap-zstd-file", "sqlite3-zstd-message", "mcap-zstd-chunks"])
+def test_timed_playback_publishes_every_topic_with_its_type_and_the_clock(ros, playbacks, tmp_path, storage, compression):
     images = ros.collect(Image, "/camera/image_raw", IMAGE_QOS)
     infos = ros.collect(CameraInfo, "/camera/camera_info", IMAGE_QOS)
     truths = ros.collect(PoseStamped, "/uav/ground_truth", RELIABLE_QOS)
     clocks = ros.collect(Clock, "/clock", RELIABLE_QOS)
     playback = Playback(
-        ros, _bag(tmp_path, storage), mode="timed", rate=2.0, clock=True,
+        ros, _bag(tmp_path, storage, compression=compression), mode="timed", rate=2.0, clock=True,
         ready_topics=["/camera/image_raw", "/camera/camera_info", "/uav/ground_truth", "/clock"],
     )
     playbacks.append(playback.start())
@@ -92,8 +95,62 @@ def test_timed_playback_publishes_every_topic_with_its_type_and_the_clock(ros, p
 def test_within_one_timestamp_the_frame_comes_after_its_camera_info(ros, tmp_path):
     bag = write_bag(tmp_path / "bag", frame_entries(SMALL_CAMERA, 3, image_first=True))
     node = ros.add(BagPlayer(context=ros.context, parameter_overrides=[Parameter("bag", value=str(bag))]))
-    topics = [conn.topic for conn, _, _ in node._messages()]
+    topics = [item[0].topic for item in node._messages()]
     assert topics == ["/camera/camera_info", "/camera/image_raw"] * 3
+
+
+def test_a_frames_camera_info_and_truth_recorded_after_it_are_played_before_it(ros, playbacks, tmp_path):
+    """``ros2 bag record`` stamps each message with its receive time: a camera driver's
+    camera_info, published after its image, is recorded a little later. It is played before
+    its image (undistort dropped the first frame: "image before any camera_info"), with
+    the frame's ground truth; a message stamped otherwise stays after it, and /clock never goes back."""
+    entries = []
+    for i, (image, info) in enumerate(zip(*[iter(frame_entries(SMALL_CAMERA, 3))] * 2)):
+        truth = PoseStamped(header=image[3].header)
+        other = PointStamped()
+        other.header.stamp.sec = 7
+        t = image[2]
+        entries += [image, ("/other", "geometry_msgs/msg/PointStamped", t + 1_000, other),
+                    (info[0], info[1], t + 2_000, info[3]), ("/uav/ground_truth", "geometry_msgs/msg/PoseStamped", t + 3_000, truth)]
+    bag = write_bag(tmp_path / "bag", entries)
+    node = ros.add(BagPlayer(context=ros.context, parameter_overrides=[Parameter("bag", value=str(bag))]))
+    topics = [item[0].topic for item in node._messages()]
+    assert topics == ["/camera/camera_info", "/uav/ground_truth", "/camera/image_raw", "/other"] * 3
+    clocks = ros.collect(Clock, "/clock", RELIABLE_QOS)
+    playback = Playback(ros, bag, mode="timed", rate=1000.0, clock=True, ready_topics=["/clock"])
+    playbacks.append(playback.start())
+    assert ros.spin_until(lambda: playback.done() and len(clocks) == len(entries))
+    stamps = [stamp_ns(c.clock) for c in clocks]
+    assert stamps == sorted(stamps) and stamps[-1] == entries[-1][2]
+
+
+@pytest.mark.parametrize("rules", [
+    ["/deck_cam/image_raw:=/camera/image_raw", "/deck_cam/camera_info:=/camera/camera_info"],  # the bag onto the graph
+    ["/camera/image_raw:=/deck_cam/image_raw", "/camera/camera_info:=/deck_cam/camera_info"],  # the graph onto the bag
+], ids=["bag-onto-graph", "graph-onto-bag"])
+def test_a_bag_of_other_topic_names_plays_paced_under_remapping(ros, playbacks, tmp_path, rules):
+    """The default pace_topic and ready_topics (the graph's names) are resolved through the
+    node's remapping rules, as its publishers are."""
+    entries = [(topic.replace("/camera/", "/deck_cam/"), *rest) for topic, *rest in frame_entries(SMALL_CAMERA, FRAMES)]
+    published = rules[0].split(":=")[1]
+    frames = ros.collect(Image, published, IMAGE_QOS)
+    infos = ros.collect(CameraInfo, published.replace("image_raw", "camera_info"), IMAGE_QOS)
+    ack_pub = ros.probe.create_publisher(PoseStamped, "test/ack", RELIABLE_QOS)
+    playback = Playback(ros, write_bag(tmp_path / "bag", entries), cli_args=["--ros-args", *[a for r in rules for a in ("-r", r)]],
+                        mode="paced", ack_topic="test/ack", ack_type="geometry_msgs/msg/PoseStamped",
+                        ready_topics=["/camera/image_raw", "/camera/camera_info"])
+    playbacks.append(playback.start())
+    acked = []
+
+    def step():
+        for frame in frames[len(acked):]:
+            ack_pub.publish(PoseStamped(header=frame.header))
+            acked.append(frame)
+        return playback.done()
+
+    assert ros.spin_until(step)
+    assert playback.result == 0 and len(acked) == FRAMES and playback.node.counters["ack_timeouts"] == 0
+    assert ros.spin_until(lambda: len(infos) == FRAMES)
 
 
 def test_paced_playback_publishes_a_frame_only_after_the_previous_one_is_acknowledged(ros, playbacks, tmp_path):
@@ -221,6 +278,11 @@ def test_missing_and_corrupt_bags_fail_start_up(ros, tmp_path):
     (tmp_path / "empty").mkdir()
     with pytest.raises(ConfigError, match="is not a readable rosbag2 bag.*metadata"):
         BagPlayer(context=ros.context, parameter_overrides=[Parameter("bag", value=str(tmp_path / "empty"))])
+    cut_off = _bag(tmp_path / "zstd", compression=CompressionMode.FILE)  # rosbags: an EOFError, not its ReaderError
+    packed = next(cut_off.glob("*.zstd"))
+    packed.write_bytes(packed.read_bytes()[: packed.stat().st_size // 2])
+    with pytest.raises(ConfigError, match="bag: '.*zstd/bag' is not a readable rosbag2 bag: .*end-of-stream"):
+        BagPlayer(context=ros.context, parameter_overrides=[Parameter("bag", value=str(cut_off))])
 
 
 @pytest.mark.parametrize(

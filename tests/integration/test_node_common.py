@@ -14,7 +14,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import ReliabilityPolicy
 from rclpy.serialization import serialize_message
-from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.rosbag2 import CompressionFormat, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 from sensor_msgs.msg import CameraInfo, Image
 
@@ -93,10 +93,14 @@ def camera_info_msg(camera: CameraModel, sec: int = 1, nanosec: int = 0) -> Came
     return msg
 
 
-def write_bag(path, entries, storage=StoragePlugin.MCAP):
-    """A rosbag2 bag of ``entries`` = [(topic, type name, bag time ns, message or raw bytes)], in order."""
+def write_bag(path, entries, storage=StoragePlugin.MCAP, compression=None):
+    """A rosbag2 bag of ``entries`` = [(topic, type name, bag time ns, message or raw bytes)], in order;
+    ``compression``: a zstd :class:`CompressionMode` (file, message; storage: mcap chunks)."""
     typestore = get_typestore(Stores.ROS2_JAZZY)
-    with Writer(path, version=9, storage_plugin=storage) as writer:
+    writer = Writer(path, version=9, storage_plugin=storage)
+    if compression is not None:
+        writer.set_compression(compression, CompressionFormat.ZSTD)
+    with writer:
         connections = {}
         for topic, type_name, t_ns, msg in entries:
             key = (topic, type_name)

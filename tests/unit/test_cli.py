@@ -46,14 +46,16 @@ def test_graph_replaying_a_bag_through_the_whole_graph_waits_for_every_link(tmp_
     from uav_landing_vision.graph import PIPELINE_TOPICS, _plan
     from uav_landing_vision.resources import config_path
 
+    bag = _bag_of(tmp_path / "bag", ["/camera/image_raw", "/camera/camera_info", "/uav/ground_truth"])
+
     def plan(nodes=None, *params):
-        args = argparse.Namespace(nodes=nodes, bag=tmp_path, param=list(params), drain=2.0, stop_timeout=10.0,
+        args = argparse.Namespace(nodes=nodes, bag=bag, param=list(params), drain=2.0, stop_timeout=10.0,
                                   config=config_path("tracker.yaml").parent)
         return dict(_plan(args)[1]["bag_player"])
 
     assert yaml.safe_load(plan()["ready_topics"]) == list(PIPELINE_TOPICS)  # the ground truth's link among them
     assert "ready_topics" not in plan("undistort,bag_player")  # a part of the graph: the file's setting
-    own = _plan(argparse.Namespace(nodes=None, bag=tmp_path, param=["bag_player:ready_topics=[/camera/image_raw]"],
+    own = _plan(argparse.Namespace(nodes=None, bag=bag, param=["bag_player:ready_topics=[/camera/image_raw]"],
                                    drain=2.0, stop_timeout=10.0, config=config_path("tracker.yaml").parent))[1]
     assert [v for k, v in own["bag_player"] if k == "ready_topics"] == ["[/camera/image_raw]"]  # the user's own only
 

@@ -20,6 +20,7 @@ from uav_landing_vision.sim import (
     make_trajectory,
     read_camera,
     read_poses,
+    SequenceWriter,
     scenario_camera,
     simulate,
 )
@@ -188,6 +189,45 @@ def test_unreadable_bags_and_topics_are_clear_errors(tmp_path, small_bag):
     _write_bag(tmp_path / "empty", [("/camera/camera_info", "sensor_msgs/msg/CameraInfo")])
     with pytest.raises(ValueError, match="no message on /camera/camera_info"):
         read_camera(tmp_path / "empty")
+
+
+def _small_sequence(path, compress=False, frames=3):
+    """``frames`` frames of stripes with their poses, written by :class:`SequenceWriter`."""
+    camera = CameraModel(40, 30, np.array([[36.0, 0.0, 19.6], [0.0, 36.0, 14.8], [0.0, 0.0, 1.0]]), np.zeros(5))
+    with SequenceWriter(path, camera, compress=compress) as writer:
+        for i in range(frames):
+            writer.write(10**9 + i * 34_000_000, np.repeat(np.arange(i, i + 40, dtype=np.uint8), 90).reshape(30, 40, 3),
+                         np.array([0.0, 0.0, 20.0 - i]), np.array([0.0, 0.0, 0.0, 1.0]))
+    return path
+
+
+def test_a_compressed_sequence_is_read_back_like_a_plain_one(tmp_path):
+    plain, packed = _small_sequence(tmp_path / "plain"), _small_sequence(tmp_path / "packed", compress=True)
+    size = {bag: sum(f.stat().st_size for f in bag.glob("*.mcap")) for bag in (plain, packed)}
+    assert size[packed] < size[plain] / 2  # zstd chunks
+    for (s0, a), (s1, b) in zip(iter_frames(plain), iter_frames(packed), strict=True):
+        assert s0 == s1 and np.array_equal(a, b)
+    assert np.array_equal(read_poses(packed).trans, read_poses(plain).trans)
+
+
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
+def test_a_cut_off_compressed_bag_is_a_clear_error(tmp_path, storage):
+    """A zstd-compressed file (``ros2 bag record --compression-mode file``) cut off: rosbags lets
+    the decompressor's error through, not as its ReaderError."""
+    from rosbags.rosbag2 import CompressionFormat, CompressionMode, Reader, StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    writer = Writer(tmp_path / "damaged", version=9, storage_plugin=StoragePlugin[storage.upper()])
+    writer.set_compression(CompressionMode.FILE, CompressionFormat.ZSTD)
+    with Reader(_small_sequence(tmp_path / "bag", frames=20)) as reader, writer:
+        typestore = get_typestore(Stores.ROS2_JAZZY)
+        conns = {c.id: writer.add_connection(c.topic, c.msgtype, typestore=typestore) for c in reader.connections}
+        for conn, t_ns, raw in reader.messages():
+            writer.write(conns[conn.id], t_ns, raw)
+    damaged = next((tmp_path / "damaged").glob("*.zstd"))
+    damaged.write_bytes(damaged.read_bytes()[: damaged.stat().st_size // 2])
+    with pytest.raises(ValueError, match=r"cannot read /camera/image_raw of bag .*damaged: "):
+        list(iter_frames(tmp_path / "damaged"))
 
 
 def test_pose_csv_rows_are_checked(tmp_path):

@@ -228,3 +228,26 @@ def test_the_run_releases_its_renderer_however_it_ends(bag, monkeypatch):
     with pytest.raises(RuntimeError, match="mid-run"):
         evaluate.evaluate_bag(bag, ["C1N0"], particles=30, roi_source="oracle", frames=2, progress=False)
     assert len(released) == 2
+
+
+def test_a_frame_stamped_no_later_than_the_one_before_is_refused_naming_the_bag(bag, tmp_path):
+    """A recording with a frame twice (or out of order): one line naming the bag and the frame
+    (it was the tracker's "reset() the tracker for a new time-line")."""
+    from rosbags.rosbag2 import Reader, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    repeated = tmp_path / "repeated"
+    with Reader(bag) as reader, Writer(repeated, version=9) as writer:
+        typestore = get_typestore(Stores.ROS2_JAZZY)
+        conns = {c.id: writer.add_connection(c.topic, c.msgtype, typestore=typestore) for c in reader.connections}
+        messages = list(reader.messages())
+        stamps = sorted({t for _, t, _ in messages})
+        for conn, t_ns, raw in messages:
+            writer.write(conns[conn.id], t_ns, raw)
+            if t_ns == stamps[1]:  # frame 1 recorded once more, 1 ns later
+                writer.write(conns[conn.id], t_ns + 1, raw)
+    with pytest.raises(SystemExit) as refused:
+        main(["evaluate", "--bag", str(repeated), "--variants", "C1N0", "--particles", "30", "--roi-source", "oracle",
+              "--frames", "4"])
+    assert str(refused.value) == (f"uav-landing evaluate: {repeated}: frame 2 is stamped {stamps[1]} ns, not after "
+                                  f"frame 1 ({stamps[1]} ns): a recording's frames must have increasing header stamps")

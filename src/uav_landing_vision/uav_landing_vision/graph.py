@@ -8,6 +8,8 @@ after ``--stop-timeout``), on Ctrl-C or SIGTERM, ``--drain`` seconds after ``bag
 played the bag (for the last frame's messages downstream), or when a node exits on its own; the exit code is 0 only if every node ended cleanly.
 With ``--bag`` every node runs on the bag's time (``use_sim_time``, from the player's ``/clock``),
 as with ``ros2 bag play --clock``: the GCS bridge would otherwise find every replayed pose stale.
+A bag that cannot be opened is refused before any node starts. ``--remap FROM:=TO`` remaps a
+topic in every node (``-r``), e.g. a recording's ``/deck_cam/image_raw`` onto ``/camera/image_raw``.
 This module imports no ROS module: the nodes do, in their own processes.
 """
 
@@ -17,6 +19,7 @@ import subprocess
 import sys
 import threading
 import time
+from contextlib import closing
 from pathlib import Path
 
 # The graph, in start order; a node is added by one line (its module, console script and
@@ -58,20 +61,30 @@ def ready_topics_parameter(topics=PIPELINE_TOPICS) -> str:
     return "[" + ", ".join(f'"{t}"' for t in topics) + "]"
 
 
-def replay_ready_topics(bag) -> tuple[str, ...]:
+def replay_ready_topics(bag, remaps=None) -> tuple[str, ...]:
     """:data:`PIPELINE_TOPICS` less the :data:`RECORDED_TOPICS` that ``bag`` lacks (all of them
-    when it cannot be read: bag_player reports that at start-up)."""
-    from rosbags.rosbag2 import Reader, ReaderError
+    when it cannot be read: bag_player reports that at start-up), every name taken through the
+    topic ``remaps`` ``{from: to}`` of the nodes."""
+    from .sim.bag import BagError
 
     try:
-        with Reader(bag) as reader:
-            recorded = {conn.topic for conn in reader.connections}
-    except (ReaderError, OSError):
+        recorded = _recorded_topics(bag)
+    except BagError:
         return PIPELINE_TOPICS
-    return tuple(t for t in PIPELINE_TOPICS if t not in RECORDED_TOPICS or t in recorded)
+    remaps = remaps or {}
+    played = {remaps.get(t, t) for t in recorded}
+    return tuple(t for t in PIPELINE_TOPICS if t not in RECORDED_TOPICS or remaps.get(t, t) in played)
 
 
-def replay_overrides(names, bag, wait_for_links: bool) -> dict:
+def _recorded_topics(bag) -> set[str]:
+    """The topics of ``bag``; BagError if it cannot be opened."""
+    from .sim.bag import open_bag
+
+    with closing(open_bag(bag)) as reader:
+        return {conn.topic for conn in reader.connections}
+
+
+def replay_overrides(names, bag, wait_for_links: bool, remaps=None) -> dict:
     """Parameter overrides of the graph ``names`` replaying ``bag``: the player plays it and
     publishes ``/clock``, every other node runs on that clock (as with ``ros2 bag play --clock``: a
     replayed pose is then not stale); with ``wait_for_links`` the player first waits for every link
@@ -80,7 +93,7 @@ def replay_overrides(names, bag, wait_for_links: bool) -> dict:
     overrides = {n: [] if n == PLAYER else [("use_sim_time", "true")] for n in names}
     overrides[PLAYER] += [("bag", str(Path(bag).resolve())), ("clock", "true")]
     if wait_for_links:
-        overrides[PLAYER].append(("ready_topics", ready_topics_parameter(replay_ready_topics(bag))))
+        overrides[PLAYER].append(("ready_topics", ready_topics_parameter(replay_ready_topics(bag, remaps))))
     return overrides
 
 
@@ -93,6 +106,11 @@ def register(sub) -> None:
         "--param", action="append", default=[], metavar="NODE:KEY=VALUE",
         help="override one parameter of one node (repeatable), e.g. bag_player:mode=timed",
     )
+    p.add_argument(
+        "--remap", action="append", default=[], metavar="FROM:=TO",
+        help="remap a topic (absolute names) in every node (repeatable), e.g. a recording's "
+             "/deck_cam/image_raw:=/camera/image_raw",
+    )
     p.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID of the graph (default: the environment's)")
     p.add_argument("--stop-timeout", type=float, default=10.0, help="seconds a node gets to stop before it is killed (default: 10)")
     p.add_argument("--drain", type=float, default=2.0,
@@ -100,11 +118,14 @@ def register(sub) -> None:
     p.set_defaults(func=_run)
 
 
-def node_command(name: str, config_dir: Path, overrides=()) -> list[str]:
-    """The command line of one node process."""
+def node_command(name: str, config_dir: Path, overrides=(), remaps=None) -> list[str]:
+    """The command line of one node process: its parameter file, then ``overrides`` ``[(key,
+    value)]`` and the topic ``remaps`` ``{from: to}``."""
     cmd = [sys.executable, "-m", f"uav_landing_vision.nodes.{name}", "--ros-args", "--params-file", str(config_dir / f"{name}.yaml")]
     for key, value in overrides:
         cmd += ["-p", f"{key}:={value}"]
+    for source, target in (remaps or {}).items():
+        cmd += ["-r", f"{source}:={target}"]
     return cmd
 
 
@@ -114,11 +135,26 @@ def _run(args) -> int:
 
         args.config = config_path("tracker.yaml").parent
     try:
-        names, overrides = _plan(args)
+        remaps = parse_remaps(args.remap)
+        names, overrides = _plan(args, remaps)
     except ValueError as exc:
         print(f"uav-landing graph: {exc}", file=sys.stderr)
         return 2
-    return Graph(names, args.config, overrides, node_environment(args.domain_id), args.stop_timeout, args.drain).run()
+    env = node_environment(args.domain_id)
+    return Graph(names, args.config, overrides, env, args.stop_timeout, args.drain, remaps).run()
+
+
+def parse_remaps(items) -> dict:
+    """``["/from:=/to", ...]`` as ``{from: to}``; ValueError on a rule that is not one."""
+    remaps = {}
+    for item in items:
+        source, sep, target = item.partition(":=")
+        if not (sep and source and target):
+            raise ValueError(f"--remap {item!r}: expected FROM:=TO")
+        if not (source.startswith("/") and target.startswith("/")):
+            raise ValueError(f"--remap {item!r}: give absolute topic names (/name)")
+        remaps[source] = target
+    return remaps
 
 
 def node_environment(domain_id: int | None = None) -> dict:
@@ -133,7 +169,7 @@ def node_environment(domain_id: int | None = None) -> dict:
     return env
 
 
-def _plan(args) -> tuple[list[str], dict]:
+def _plan(args, remaps=None) -> tuple[list[str], dict]:
     """The nodes to start and the parameter overrides of each; ValueError on a bad request."""
     names = list(GRAPH_NODES) if not args.nodes else [n.strip() for n in args.nodes.split(",") if n.strip()]
     unknown = [n for n in names if n not in GRAPH_NODES]
@@ -145,6 +181,8 @@ def _plan(args) -> tuple[list[str], dict]:
         raise ValueError("--bag needs bag_player among --nodes")
     elif not args.bag.exists():
         raise ValueError(f"bag {args.bag} does not exist")
+    else:
+        _check_bag(args.bag)
     if not names:
         raise ValueError("no node to run")
     if args.drain < 0 or args.stop_timeout <= 0:
@@ -153,7 +191,7 @@ def _plan(args) -> tuple[list[str], dict]:
         overrides = {n: [] for n in names}
     else:  # the whole graph waits for its links unless told which
         whole = set(names) == set(GRAPH_NODES) and not any(i.startswith(f"{PLAYER}:ready_topics=") for i in args.param)
-        overrides = replay_overrides(names, args.bag, wait_for_links=whole)
+        overrides = replay_overrides(names, args.bag, wait_for_links=whole, remaps=remaps)
     for item in args.param:
         node, sep, assignment = item.partition(":")
         key, eq, value = assignment.partition("=")
@@ -168,13 +206,25 @@ def _plan(args) -> tuple[list[str], dict]:
     return names, overrides
 
 
+def _check_bag(bag) -> None:
+    """ValueError unless ``bag`` opens: a damaged one would fail the player while the others start."""
+    from .sim.bag import BagError
+
+    try:
+        _recorded_topics(bag)
+    except BagError as exc:
+        raise ValueError(f"bag {bag} is not a readable rosbag2 bag: {exc}") from exc
+
+
 class Graph:
     """The node processes of one run, their log streams and their shutdown."""
 
-    def __init__(self, names, config_dir: Path, overrides: dict, env: dict, stop_timeout: float, drain_s: float = 2.0):
+    def __init__(self, names, config_dir: Path, overrides: dict, env: dict, stop_timeout: float, drain_s: float = 2.0,
+                 remaps=None):
         self.names = names
         self.config_dir = config_dir
         self.overrides = overrides
+        self.remaps = remaps or {}
         self.env = env
         self.stop_timeout = stop_timeout
         self.drain_s = drain_s
@@ -192,7 +242,7 @@ class Graph:
             for name in self.names:
                 # Own session: a terminal's Ctrl-C reaches the launcher only, which stops the nodes in order.
                 proc = subprocess.Popen(
-                    node_command(name, self.config_dir, self.overrides[name]), env=self.env,
+                    node_command(name, self.config_dir, self.overrides[name], self.remaps), env=self.env,
                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, errors="replace",
                     start_new_session=True,
                 )

@@ -4,8 +4,10 @@ Stands in for ``ros2 bag play`` where rosbag2 is not installed; reads with ``ros
 message is checked by deserialising it with the installed message type, then its recorded
 bytes are published unchanged. Images and camera_info go out with the graph's image QoS
 (reliable, keep last 5), other topics reliable, keep last 10 (``qos.qos_for_type``). Messages
-sharing a bag timestamp are published with the ``pace_topic`` message last, so a frame's
-camera_info precedes its image.
+go out in bag time order (the recorder's receive times; ``clock`` follows it), except that a
+frame (``pace_topic`` message) goes after the messages recorded with it: those of its bag time
+and, before the next frame and up to ``FRAME_LAG_NS`` later, those of its header stamp (a
+driver's camera_info, received after its image). So a frame's camera_info precedes it.
 
 Modes (parameter ``mode``):
 
@@ -24,12 +26,12 @@ Modes (parameter ``mode``):
 Before playing, the player waits (up to ``ready_timeout_s``) until every topic of
 ``ready_topics`` has a subscriber and a publisher and, in paced mode, until ``pace_topic``
 has a subscriber and ``ack_topic`` a publisher; a paced player that is not ready by then
-exits with code 1. ``clock: true`` publishes the bag time on ``/clock`` before each message.
+exits with code 1. ``clock: true`` publishes the bag time on ``/clock`` before each message
+(the latest so far: it never goes back).
 A missing or unreadable bag fails start-up (exit code 2).
 """
 
 import importlib
-import itertools
 import sys
 import time
 from dataclasses import dataclass
@@ -40,14 +42,16 @@ from builtin_interfaces.msg import Time
 from rclpy.duration import Duration
 from rclpy.qos import ReliabilityPolicy
 from rclpy.serialization import deserialize_message
-from rosbags.rosbag2 import Reader, ReaderError
+from rosbags.rosbag2 import Reader
 from rosgraph_msgs.msg import Clock
 
 from ..config import ConfigError
+from ..sim.bag import BagError, bag_messages, open_bag
 from .base import LandingNode, run_node, stamp_ns
 from .qos import RELIABLE_QOS, qos_for_type
 
 ACKED_FLUSH_TIMEOUT_S = 5.0  # at the end, how long reliable topics may take to be acknowledged
+FRAME_LAG_NS = 500_000_000  # how much later than its frame a frame's camera_info or truth may be recorded
 
 
 @dataclass(frozen=True)
@@ -55,7 +59,7 @@ class BagPlayerConfig:
     bag: str = ""  # rosbag2 directory, or a single .mcap / .db3 file
     mode: Literal["timed", "paced"] = "timed"
     rate: float = 1.0  # timed mode: speed factor on the recorded rate
-    pace_topic: str = "/camera/image_raw"  # paced mode: the bag topic whose messages wait for an ack
+    pace_topic: str = "/camera/image_raw"  # the frames' topic as published (remapping applies); paced: they wait for an ack
     ack_topic: str = "camera/image_rect"  # paced mode: the topic that acknowledges a frame by its stamp
     ack_type: str = "sensor_msgs/msg/Image"
     ack_timeout_s: float = 10.0
@@ -88,13 +92,16 @@ class BagPlayer(LandingNode):
         self._played = set()  # ids of the connections whose messages are played
         for conn in self._reader.connections:
             self._add_publisher(conn)
+        self._pace = self._bag_topic(_resolved(self, "pace_topic", cfg.pace_topic))  # None: the bag has no frames
         self._clock_pub = self.create_publisher(Clock, "/clock", RELIABLE_QOS) if cfg.clock else None
         self._pending = None  # stamp (ns) of the paced frame awaiting its acknowledgement
         self._acked = set()
         if cfg.mode == "paced":
-            pace = self._players.get(cfg.pace_topic)
+            pace = self._players.get(self._pace)
             if pace is None:
-                raise ConfigError(f"pace_topic: '{cfg.pace_topic}' is not a playable topic of the bag (topics: {sorted(self._players)})")
+                playable = sorted(f"{c.topic} [{c.msgtype}]" for c in self._reader.connections if c.id in self._played)
+                raise ConfigError(f"pace_topic: '{cfg.pace_topic}' is not a playable topic of the bag (topics: {playable}); "
+                                  f"to play a recording of other topic names remap them (-r /recorded/name:={cfg.pace_topic})")
             if "header" not in pace.msg_type.get_fields_and_field_types():
                 raise ConfigError(f"pace_topic: '{cfg.pace_topic}' has no header to acknowledge")
             ack_cls = _message_class(cfg.ack_type)
@@ -104,6 +111,10 @@ class BagPlayer(LandingNode):
             self._ack_sub = self.create_subscription(ack_cls, ack_topic, self._on_ack, qos_for_type(cfg.ack_type))
         topics = {c.topic: c.msgcount for c in self._reader.connections if c.topic in self._players}
         self.get_logger().info(f"bag {cfg.bag}: {self._reader.message_count} messages, topics {topics}, mode {cfg.mode}")
+
+    def _bag_topic(self, name: str) -> str | None:
+        """The bag topic published as ``name`` (a resolved topic name: remapping applies), if any."""
+        return next((topic for topic, publisher in self._players.items() if publisher.topic_name == name), None)
 
     def _add_publisher(self, conn) -> None:
         topic, type_name = conn.topic, conn.msgtype
@@ -129,38 +140,31 @@ class BagPlayer(LandingNode):
         first_ns = start = None
         pending_t_ns = None  # bag time of the pending frame: later messages wait for its acknowledgement
         frames = 0
-        total = sum(c.msgcount for c in self._reader.connections if c.topic == self.config.pace_topic)
+        total = sum(c.msgcount for c in self._reader.connections if c.topic == self._pace)
+        clock_ns = 0
         try:
-            for conn, t_ns, raw in self._messages():
-                if conn.id not in self._played:
-                    continue
-                publisher = self._players[conn.topic]
-                self.counters["received"] += 1
-                try:
-                    msg = deserialize_message(raw, publisher.msg_type)
-                except RuntimeError as exc:
-                    self.drop(f"{conn.topic}: message at {t_ns} ns does not deserialise as {conn.msgtype}: {exc}")
-                    continue
-                is_frame = paced and conn.topic == self.config.pace_topic
+            for conn, t_ns, raw, msg in self._messages():
+                is_frame = paced and conn.topic == self._pace
                 if is_frame or (self._pending is not None and t_ns > pending_t_ns):
                     self._wait_for_ack(executor)
                 elif not paced:
                     if first_ns is None:
                         first_ns, start = t_ns, time.monotonic()
                     _spin_until(executor, start + (t_ns - first_ns) * 1e-9 / self.config.rate)
-                if self._clock_pub is not None:
-                    self._clock_pub.publish(Clock(clock=Time(sec=t_ns // 1_000_000_000, nanosec=t_ns % 1_000_000_000)))
-                publisher.publish(raw)
+                if self._clock_pub is not None:  # never back: a frame may follow its later-recorded camera_info
+                    clock_ns = max(clock_ns, t_ns)
+                    self._clock_pub.publish(Clock(clock=Time(sec=clock_ns // 1_000_000_000, nanosec=clock_ns % 1_000_000_000)))
+                self._players[conn.topic].publish(raw)
                 self.counters["published"] += 1
                 if is_frame:
                     self._pending, pending_t_ns = stamp_ns(msg.header.stamp), t_ns
-                if conn.topic == self.config.pace_topic:
+                if conn.topic == self._pace:
                     frames += 1
                     every = self.config.progress_every
                     if every and (frames % every == 0 or frames == total):
                         self.get_logger().info(f"played {frames}/{total} frames")
                 executor.spin_once(timeout_sec=0.0)
-        except (ReaderError, OSError) as exc:
+        except BagError as exc:
             self.get_logger().error(f"bag {self.config.bag} cannot be read further: {exc}")
             return 1
         self._wait_for_ack(executor)
@@ -175,22 +179,50 @@ class BagPlayer(LandingNode):
         return 0
 
     def _messages(self):
-        """The bag's messages in time order; within one timestamp the pace topic comes last."""
-        stream = self._reader.messages()
-        for _, group in itertools.groupby(stream, key=lambda item: item[1]):
-            yield from sorted(group, key=lambda item: item[0].topic == self.config.pace_topic)
+        """The played messages ``(connection, bag time, raw, message)`` in bag time order, except
+        that a frame (``pace_topic`` message) comes after those recorded with it: at its bag time
+        or, before the next frame and at most ``FRAME_LAG_NS`` later, with its header stamp (its
+        camera_info and ground truth, which a recorder may receive after it)."""
+        frame, held = None, []
+        for item in self._decoded():
+            if frame is not None and (item[0].topic == self._pace or item[1] > frame[1] + FRAME_LAG_NS):
+                yield from _after_its_own(frame, held)
+                frame, held = None, []
+            if item[0].topic == self._pace:
+                frame = item
+            elif frame is None:
+                yield item
+            else:
+                held.append(item)
+        if frame is not None:
+            yield from _after_its_own(frame, held)
+
+    def _decoded(self):
+        """``(connection, bag time, raw, message)`` of the played topics in bag time order; a
+        message that does not deserialise is dropped (logged, counted)."""
+        for conn, t_ns, raw in bag_messages(self._reader):
+            if conn.id not in self._played:
+                continue
+            self.counters["received"] += 1
+            try:
+                msg = deserialize_message(raw, self._players[conn.topic].msg_type)
+            except RuntimeError as exc:
+                self.drop(f"{conn.topic}: message at {t_ns} ns does not deserialise as {conn.msgtype}: {exc}")
+                continue
+            yield conn, t_ns, raw, msg
 
     def _missing(self) -> list[str]:
         missing = []
         for name in self._ready_topics:
-            own = self._players.get(name)
+            own = self._players.get(self._bag_topic(name))
             if own is not None and own.get_subscription_count() == 0:
                 missing.append(f"subscriber of {name}")
             elif own is None and (self.count_publishers(name) == 0 or self.count_subscribers(name) == 0):
                 missing.append(f"publisher and subscriber of {name}")
         if self.config.mode == "paced":
-            if self._players[self.config.pace_topic].get_subscription_count() == 0:
-                missing.append(f"subscriber of {self.config.pace_topic}")
+            pace = self._players[self._pace]
+            if pace.get_subscription_count() == 0:
+                missing.append(f"subscriber of {pace.topic_name}")
             if self._ack_sub.get_publisher_count() == 0:
                 missing.append(f"publisher of {self._ack_sub.topic_name}")
         return missing
@@ -231,15 +263,28 @@ class BagPlayer(LandingNode):
         super().destroy_node()
 
 
+def _header_stamp(msg) -> int | None:
+    header = getattr(msg, "header", None)
+    return None if header is None else stamp_ns(header.stamp)
+
+
+def _after_its_own(frame, held) -> list:
+    """``held`` (the messages recorded after ``frame``) with those of the frame's bag time or
+    header stamp moved before it."""
+    stamp = _header_stamp(frame[3])
+    own, rest = [], []
+    for m in held:
+        (own if m[1] == frame[1] or (stamp is not None and _header_stamp(m[3]) == stamp) else rest).append(m)
+    return own + [frame] + rest
+
+
 def _open_bag(path: str) -> Reader:
     if not Path(path).exists():
         raise ConfigError(f"bag: '{path}' does not exist")
     try:
-        reader = Reader(path)
-        reader.open()
-    except (ReaderError, OSError) as exc:
+        return open_bag(path)
+    except BagError as exc:
         raise ConfigError(f"bag: '{path}' is not a readable rosbag2 bag: {exc}") from exc
-    return reader
 
 
 def _resolved(node, key: str, topic: str) -> str:

@@ -6,12 +6,13 @@ each per frame with the same header stamp (also the bag's record time).
 """
 
 import csv
+from contextlib import closing
 from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
-from rosbags.rosbag2 import Reader, ReaderError, StoragePlugin, Writer
+from rosbags.rosbag2 import CompressionFormat, CompressionMode, Reader, StoragePlugin, Writer
 from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
 
@@ -52,7 +53,7 @@ class SequenceWriter:
             self._csv.writerow(CSV_HEADER)
         self.writer = Writer(Path(bag_dir), version=Writer.VERSION_LATEST, storage_plugin=StoragePlugin.MCAP)
         if compress:
-            self.writer.set_compression(Writer.CompressionMode.STORAGE, Writer.CompressionFormat.ZSTD)
+            self.writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
         self.writer.open()
         self.conn = {
             IMAGE_TOPIC: self.writer.add_connection(IMAGE_TOPIC, "sensor_msgs/msg/Image", typestore=_TS),
@@ -95,6 +96,35 @@ class SequenceWriter:
         self.close()
 
 
+class BagError(ValueError):
+    """A rosbag2 bag that cannot be opened, or read to its end."""
+
+
+def open_bag(path) -> Reader:
+    """The open reader of a bag (a rosbag2 folder, or one .mcap / .db3 file); :class:`BagError`
+    (the reason) if it cannot be opened."""
+    try:
+        reader = Reader(Path(path))
+        reader.open()
+    except Exception as exc:  # rosbags passes a damaged file's zstd, EOF and sqlite errors on as they are
+        raise BagError(str(exc) or type(exc).__name__) from exc
+    return reader
+
+
+def bag_messages(reader: Reader, connections=()):
+    """``reader.messages(connections)`` (all of them without any); :class:`BagError` where the
+    file turns out to be damaged."""
+    messages = reader.messages(connections=connections)
+    while True:
+        try:
+            item = next(messages)
+        except StopIteration:
+            return
+        except Exception as exc:  # as in open_bag
+            raise BagError(str(exc) or type(exc).__name__) from exc
+        yield item
+
+
 def _stamp(header) -> int:
     return int(header.stamp.sec) * 10**9 + int(header.stamp.nanosec)
 
@@ -120,7 +150,7 @@ def _topic_messages(path, topic: str, types: tuple[str, ...]):
     """Deserialised messages of ``topic`` (or of the first topic with one of ``types`` if empty).
     A missing or unreadable bag or topic, or a topic of another type, is a ValueError naming both."""
     try:
-        with Reader(Path(path)) as reader:
+        with closing(open_bag(path)) as reader:
             conns = [c for c in reader.connections if (c.topic == topic if topic else c.msgtype in types)]
             if not conns:
                 found = sorted(f"{c.topic} [{c.msgtype}]" for c in reader.connections)
@@ -129,9 +159,9 @@ def _topic_messages(path, topic: str, types: tuple[str, ...]):
             wrong = sorted({c.msgtype for c in conns} - set(types))
             if wrong:
                 raise ValueError(f"{path}: topic {conns[0].topic} is {', '.join(wrong)}, not {' or '.join(types)}")
-            for conn, _, raw in reader.messages(connections=conns):
+            for conn, _, raw in bag_messages(reader, conns):
                 yield _TS.deserialize_cdr(raw, conn.msgtype)
-    except (ReaderError, SerdeError, FileNotFoundError) as exc:
+    except (BagError, SerdeError) as exc:
         what = topic or f"the {' or '.join(types)} topic"
         raise ValueError(f"cannot read {what} of bag {path}: {exc}") from exc
 

@@ -149,6 +149,10 @@ def evaluate_bag(bag, variants, *, particles: int | None = None, metric: str | N
             i = index.get(int(stamp))
             if i is None:
                 raise EvaluationError(f"{bag}: frame stamp {stamp} has no ground-truth pose")
+            if k and stamp <= last:
+                raise EvaluationError(f"{bag}: frame {start + k} is stamped {stamp} ns, not after frame {start + k - 1} "
+                                      f"({last} ns): a recording's frames must have increasing header stamps")
+            last = stamp
             gt_t[k], gt_q[k] = truth.trans[i], truth.quat[i]
             roi = rois(frame, k) if rois is not None else projected_roi(camera, vertices, truth.quat[i], truth.trans[i])
             t_roi = time.perf_counter()
