@@ -29,11 +29,11 @@ def mavlink_receiver():
 
 
 class Rig:
-    def __init__(self, ros, port: int):
+    def __init__(self, ros, port: int, *overrides):
         self.ros = ros
         self.node = ros.add(GcsBridgeNode(
             context=ros.context, cli_args=["--ros-args", "--params-file", str(PARAMS)],
-            parameter_overrides=[Parameter("mavlink.connection", value=f"udpout:127.0.0.1:{port}")],
+            parameter_overrides=[Parameter("mavlink.connection", value=f"udpout:127.0.0.1:{port}"), *overrides],
         ))
         self.pose_pub = ros.probe.create_publisher(PoseWithCovarianceStamped, "uav/pose", RELIABLE_QOS)
         self.status_pub = ros.probe.create_publisher(TrackerStatus, "uav/tracker_status", RELIABLE_QOS)
@@ -198,6 +198,31 @@ def test_malformed_poses_and_states_are_dropped(ros, mavlink_receiver):
     seen = len(rig.guidance)
     assert ros.spin_until(lambda: len(rig.guidance) > seen + 2)  # still ticking
     assert all(math.isnan(g.range) for g in rig.guidance) and rig.guidance[-1].stage == LandingGuidance.LOITER
+
+
+def test_a_pose_mavlink_cannot_carry_is_dropped_and_the_node_goes_on(ros, mavlink_receiver):
+    """Every landing-frame coordinate within float32 but the distance beyond it (3.4e38 m on each
+    axis): the pose was taken, and the next tick raised OverflowError packing LANDING_TARGET's
+    distance out of the timer, which ended the node."""
+    rig = Rig(ros, mavlink_receiver.port.getsockname()[1], Parameter("mavlink.messages", value=["LANDING_TARGET"]))
+    origin = landing_position(np.zeros(3))
+    to_landing = np.column_stack([landing_position(e) - origin for e in np.eye(3)])  # a rotation
+    x, y, z = to_landing.T @ (np.full(3, 3.4e38) - origin)
+    huge = rig.pose(x=x, y=y, z=z)
+    rig.pose_pub.publish(huge)
+    rig.status_pub.publish(TrackerStatus(header=huge.header, state=TrackerStatus.TRACKING))
+    assert ros.spin_until(lambda: rig.node.counters["dropped"] == 1)
+    assert "exceeds MAVLink's float32 range" in rig.node.last_error
+
+    def tracked():
+        msg = rig.pose()
+        rig.pose_pub.publish(msg)
+        rig.status_pub.publish(TrackerStatus(header=msg.header, state=TrackerStatus.TRACKING))
+        return any(math.isfinite(g.range) for g in rig.guidance)
+
+    assert ros.spin_until(tracked)
+    target = mavlink_receiver.recv_match(type="LANDING_TARGET", blocking=True, timeout=5.0)
+    assert target is not None and target.distance == pytest.approx(math.dist(landing_position([0.5, -2.0, 30.0]), (0, 0, 0)), rel=1e-6)
 
 
 def test_poses_are_refused_while_a_second_tracker_publishes(ros, mavlink_receiver):

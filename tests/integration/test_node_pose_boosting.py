@@ -175,6 +175,24 @@ def test_malformed_detections_and_images_are_dropped(ros, small_database):
     assert rig.send(short) is None and "image data has 10 bytes" in rig.node.last_error
 
 
+def test_many_unusable_detections_are_dropped_in_one_log_line(ros, small_database):
+    """Boxes outside the frame: each was logged on its own (~0.3 ms a call in rclpy's logger, even
+    throttled), so 20 000 of them held the node ~5 s on one 0.5 MB message. They are each counted,
+    and logged in one drop."""
+    rig = Rig(ros, small_database)
+    rig.send_info()
+    drops = []
+    real_drop = rig.node.drop
+    rig.node.drop = lambda reason, count=1: drops.append(count) or real_drop(reason, count)
+    x, y, w, h = true_roi(6)
+    bad = [(400 + k % 7, 300, 10, 10, 0.99) for k in range(2_000)]
+    out = rig.send(frame_msg(6), detections_msg(6, [*bad, (x, y, w, h, 0.6)]))
+    assert out is not None and len(out.poses) == M  # the usable detection is used
+    assert drops == [2_000] and rig.node.counters["dropped"] == 2_000
+    assert rig.node.last_error.startswith(f"2000 unusable detections of stamp {stamp_ns(out.header.stamp)} ns: detection 0: ")
+    assert rig.node.last_error.endswith("; and 1997 more")
+
+
 def test_unmatched_entries_older_than_the_cache_are_dropped(ros, small_database):
     rig = Rig(ros, small_database, Parameter("node.cache_size", value=2))
     rig.send_info()

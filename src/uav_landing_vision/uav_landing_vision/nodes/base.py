@@ -114,9 +114,10 @@ class LandingNode(Node):
             self.drop(f"image stamped {stamp_ns(old.header.stamp)} ns: {waiting_for} within {limit} frames")
         held.append(frame)
 
-    def drop(self, reason: str) -> None:
-        """Log why a message is dropped (at most once a second per node) and count it."""
-        self.counters["dropped"] += 1
+    def drop(self, reason: str, count: int = 1) -> None:
+        """Log why a message (or ``count`` items of one) is dropped, at most once a second per node,
+        and count them."""
+        self.counters["dropped"] += count
         self.last_error = reason
         self.get_logger().error(f"dropped: {reason}", throttle_duration_sec=1.0)
 

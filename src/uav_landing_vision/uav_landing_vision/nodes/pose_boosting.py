@@ -44,6 +44,8 @@ from .poses import numpy_to_pose
 from .qos import IMAGE_QOS, RELIABLE_QOS
 from .sync import RESTART_BEHIND_NS, RepeatedStampError, StampCache
 
+LOGGED_REASONS = 3  # the reasons of the first unusable detections of a message that are logged
+
 
 @dataclass(frozen=True)
 class PoseBoostingNodeConfig:
@@ -114,19 +116,23 @@ class PoseBoostingNode(LandingNode):
             self._boost(*entry.items["image"], entry.items["detections"])
 
     def _best_roi(self, detections: DetectionArray, width: int, height: int):
-        """The ROI of the highest-scoring usable detection, or None; unusable ones are dropped."""
-        best = None
+        """The ROI of the highest-scoring usable detection, or None. The unusable ones are each
+        counted as dropped but logged in one line: rclpy's logger takes ~0.3 ms a call."""
+        best, unusable, reasons = None, 0, []
         for i, det in enumerate(detections.detections):
-            r = det.roi
             try:
-                if not (math.isfinite(det.score) and 0.0 <= det.score <= 1.0):
-                    raise ValueError(f"score {det.score} is not in [0, 1]")
-                roi = check_roi((r.x_offset, r.y_offset, r.width, r.height), width, height)
+                roi = _usable_roi(det, width, height)
             except ValueError as exc:
-                self.drop(f"detection {i} of stamp {stamp_ns(detections.header.stamp)} ns: {exc}")
+                unusable += 1
+                if len(reasons) < LOGGED_REASONS:
+                    reasons.append(f"detection {i}: {exc}")
                 continue
             if best is None or det.score > best[0]:
                 best = (det.score, roi)
+        if unusable:
+            more = f"; and {unusable - len(reasons)} more" if unusable > len(reasons) else ""
+            self.drop(f"{unusable} unusable detection{'s' if unusable > 1 else ''} of stamp "
+                      f"{stamp_ns(detections.header.stamp)} ns: {'; '.join(reasons)}{more}", count=unusable)
         return None if best is None else best[1]
 
     def _boost(self, image: Image, frame: np.ndarray, detections: DetectionArray) -> None:
@@ -151,6 +157,14 @@ class PoseBoostingNode(LandingNode):
         self._pub.publish(out)
         self.counters["published"] += 1
         self.counters["without_hypotheses"] += hyps is None
+
+
+def _usable_roi(det, width: int, height: int) -> tuple[int, int, int, int]:
+    """The ROI of detection ``det`` clipped to the image; ValueError if its score or box is unusable."""
+    if not (math.isfinite(det.score) and 0.0 <= det.score <= 1.0):
+        raise ValueError(f"score {det.score} is not in [0, 1]")
+    r = det.roi
+    return check_roi((r.x_offset, r.y_offset, r.width, r.height), width, height)
 
 
 def _load_database(config: HypothesisConfig) -> PoseDatabase:
