@@ -58,6 +58,20 @@ class Playback:
         self.node.destroy_node()
 
 
+def acknowledge_every_frame(ros, playback, frames, ack_pub) -> list:
+    """Acknowledge each frame as it comes until the playback ends; the frames acknowledged."""
+    acked = []
+
+    def step():
+        for frame in frames[len(acked):]:
+            ack_pub.publish(PoseStamped(header=frame.header))
+            acked.append(frame)
+        return playback.done()
+
+    assert ros.spin_until(step)
+    return acked
+
+
 @pytest.fixture
 def playbacks():
     started = []
@@ -140,15 +154,7 @@ def test_a_bag_of_other_topic_names_plays_paced_under_remapping(ros, playbacks, 
                         mode="paced", ack_topic="test/ack", ack_type="geometry_msgs/msg/PoseStamped",
                         ready_topics=["/camera/image_raw", "/camera/camera_info"])
     playbacks.append(playback.start())
-    acked = []
-
-    def step():
-        for frame in frames[len(acked):]:
-            ack_pub.publish(PoseStamped(header=frame.header))
-            acked.append(frame)
-        return playback.done()
-
-    assert ros.spin_until(step)
+    acked = acknowledge_every_frame(ros, playback, frames, ack_pub)
     assert playback.result == 0 and len(acked) == FRAMES and playback.node.counters["ack_timeouts"] == 0
     assert ros.spin_until(lambda: len(infos) == FRAMES)
 
@@ -197,15 +203,7 @@ def test_paced_playback_holds_the_next_frames_camera_info_and_truth_until_the_ac
     held = len(reports)
     assert ros.spin_until(lambda: len(reports) > held)  # the player has spun a second or so meanwhile
     assert (len(infos), len(truths)) == (1, 1)
-    acked = []
-
-    def step():
-        for frame in frames[len(acked):]:
-            ack_pub.publish(PoseStamped(header=frame.header))
-            acked.append(frame)
-        return playback.done()
-
-    assert ros.spin_until(step)
+    acked = acknowledge_every_frame(ros, playback, frames, ack_pub)
     assert playback.result == 0 and len(acked) == FRAMES
     assert ros.spin_until(lambda: len(infos) == FRAMES and len(truths) == FRAMES)
 

@@ -47,6 +47,13 @@ class Rig:
         self.status_pub.publish(TrackerStatus(state=state))
         assert self.ros.spin_until(lambda: self.node.counters["status_received"] > before)
 
+    def send_tracked(self) -> bool:
+        """Publish a fresh pose and its frame's TRACKING status; whether guidance has a range yet."""
+        msg = self.pose()
+        self.pose_pub.publish(msg)
+        self.status_pub.publish(TrackerStatus(header=msg.header, state=TrackerStatus.TRACKING))
+        return any(math.isfinite(g.range) for g in self.guidance)
+
     def pose(self, x=0.5, y=-2.0, z=30.0, quat=(0.0, 0.0, 0.0, 1.0), frame_id="camera_optical_frame"):
         msg = PoseWithCovarianceStamped()
         msg.header.stamp = self.ros.probe.get_clock().now().to_msg()
@@ -214,13 +221,7 @@ def test_a_pose_mavlink_cannot_carry_is_dropped_and_the_node_goes_on(ros, mavlin
     assert ros.spin_until(lambda: rig.node.counters["dropped"] == 1)
     assert "exceeds MAVLink's float32 range" in rig.node.last_error
 
-    def tracked():
-        msg = rig.pose()
-        rig.pose_pub.publish(msg)
-        rig.status_pub.publish(TrackerStatus(header=msg.header, state=TrackerStatus.TRACKING))
-        return any(math.isfinite(g.range) for g in rig.guidance)
-
-    assert ros.spin_until(tracked)
+    assert ros.spin_until(rig.send_tracked)
     target = mavlink_receiver.recv_match(type="LANDING_TARGET", blocking=True, timeout=5.0)
     assert target is not None and target.distance == pytest.approx(math.dist(landing_position([0.5, -2.0, 30.0]), (0, 0, 0)), rel=1e-6)
 
@@ -246,13 +247,7 @@ def test_poses_are_refused_while_a_second_tracker_publishes(ros, mavlink_receive
     assert mavlink_receiver.recv_match(type="ODOMETRY", blocking=True, timeout=0.3) is None
     ros.probe.destroy_publisher(other)  # one tracker left: its tracked poses are taken again
 
-    def tracked():
-        msg = rig.pose()
-        rig.pose_pub.publish(msg)
-        rig.status_pub.publish(TrackerStatus(header=msg.header, state=TrackerStatus.TRACKING))
-        return any(math.isfinite(g.range) for g in rig.guidance)
-
-    assert ros.spin_until(tracked)
+    assert ros.spin_until(rig.send_tracked)
 
 
 @pytest.mark.parametrize(
