@@ -1,12 +1,15 @@
 """``gcs_bridge`` in-process over DDS: pose → landing guidance and MAVLink; bad input dropped."""
 
 import math
+import socket
 from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseWithCovarianceStamped
+from pymavlink.dialects.v20 import common as mav2
 from rclpy.parameter import Parameter
 from scipy.spatial.transform import Rotation
 from std_srvs.srv import Trigger
@@ -29,11 +32,13 @@ def mavlink_receiver():
 
 
 class Rig:
-    def __init__(self, ros, port: int, *overrides):
+    def __init__(self, ros, port: int | str, *overrides):
+        """``port``: the UDP port of a receiver, or a whole connection string."""
         self.ros = ros
+        connection = port if isinstance(port, str) else f"udpout:127.0.0.1:{port}"
         self.node = ros.add(GcsBridgeNode(
             context=ros.context, cli_args=["--ros-args", "--params-file", str(PARAMS)],
-            parameter_overrides=[Parameter("mavlink.connection", value=f"udpout:127.0.0.1:{port}"), *overrides],
+            parameter_overrides=[Parameter("mavlink.connection", value=connection), *overrides],
         ))
         self.pose_pub = ros.probe.create_publisher(PoseWithCovarianceStamped, "uav/pose", RELIABLE_QOS)
         self.status_pub = ros.probe.create_publisher(TrackerStatus, "uav/tracker_status", RELIABLE_QOS)
@@ -250,13 +255,64 @@ def test_poses_are_refused_while_a_second_tracker_publishes(ros, mavlink_receive
     assert ros.spin_until(rig.send_tracked)
 
 
+def test_the_node_rides_out_a_gcs_link_that_is_down(ros):
+    """A TCP GCS not up yet (or gone): the node starts, keeps ticking, reports the link on
+    /diagnostics (WARN, the error, the frames not sent) and sends as soon as the GCS listens.
+    It refused to start before."""
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    reports = ros.collect(DiagnosticArray, "/diagnostics", RELIABLE_QOS)
+    rig = Rig(ros, f"tcp:127.0.0.1:{port}")
+
+    def own():
+        return [s for r in reports for s in r.status if s.name == "/gcs_bridge"]
+
+    def values(status):
+        return {v.key: v.value for v in status.values}
+
+    assert ros.spin_until(lambda: any(s.level == DiagnosticStatus.WARN for s in own()))
+    warn = next(s for s in own() if s.level == DiagnosticStatus.WARN)
+    assert "not sent to 'tcp:127.0.0.1:" in warn.message and "refused" in warn.message
+    assert int(values(warn)["mavlink_dropped"]) > 0 and values(warn)["mavlink_up"] == "0"
+    seen = len(rig.guidance)
+    assert ros.spin_until(lambda: len(rig.guidance) > seen + 5)  # still ticking
+
+    with socket.create_server(("127.0.0.1", port)) as listener:
+        listener.setblocking(False)
+        conn, data = None, b""
+
+        def heartbeat_heard():
+            nonlocal conn, data
+            try:
+                if conn is None:
+                    conn, _ = listener.accept()
+                    conn.setblocking(False)
+                data += conn.recv(1 << 16)
+            except BlockingIOError:
+                pass
+            return any(m.get_type() == "HEARTBEAT" for m in mav_parse(data))
+
+        assert ros.spin_until(heartbeat_heard)
+        reports.clear()
+        assert ros.spin_until(lambda: own() and values(own()[-1])["mavlink_up"] == "1")
+        assert int(values(own()[-1])["mavlink_restored"]) == 1
+        conn.close()
+
+
+def mav_parse(data: bytes) -> list:
+    parser = mav2.MAVLink(None)
+    parser.robust_parsing = True
+    return parser.parse_buffer(data) or []
+
+
 @pytest.mark.parametrize(
     "kwargs, message",
     [
         ({}, "missing 6 required positional arguments: 'camera'"),
         ({"cli_args": ["--ros-args", "--params-file", str(PARAMS)], "parameter_overrides": [Parameter("mavlink.rate_hz", value="fast")]}, "mavlink.rate_hz: expected a number"),
         ({"cli_args": ["--ros-args", "--params-file", str(PARAMS)], "parameter_overrides": [Parameter("cone.colour", value=1)]}, r"cone: unknown key\(s\) \['colour'\]"),
-        ({"cli_args": ["--ros-args", "--params-file", str(PARAMS)], "parameter_overrides": [Parameter("mavlink.connection", value="tcp:127.0.0.1:1")]}, "mavlink: cannot open 'tcp:127.0.0.1:1'"),
+        ({"cli_args": ["--ros-args", "--params-file", str(PARAMS)], "parameter_overrides": [Parameter("mavlink.connection", value="tcp:127.0.0.1")]}, "mavlink: cannot open 'tcp:127.0.0.1'"),
     ],
 )
 def test_bad_parameters_fail_start_up(ros, kwargs, message):

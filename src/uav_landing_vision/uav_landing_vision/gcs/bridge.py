@@ -13,6 +13,7 @@ from pymavlink.dialects.v20 import common as mav2
 from .config import GcsBridgeConfig
 from .frames import DeckGeometry, LandingPose, camera_to_landing, euler_covariance
 from .landing import LandingGuidance, Stage, StageMachine, cone_geometry
+from .link import LinkStats
 from .mavlink import MavlinkSender
 
 TRACKER_LOST, TRACKER_ACQUIRING, TRACKER_TRACKING = 0, 1, 2  # uav_landing_msgs/TrackerStatus.state
@@ -30,7 +31,7 @@ MIN_SEND_SPACING = 0.75
 @dataclass(frozen=True)
 class TickResult:
     guidance: LandingGuidance
-    sent: tuple[str, ...]  # MAVLink message types sent by this tick, in order
+    sent: tuple[str, ...]  # MAVLink message types this tick handed to the link, in order (see link_stats)
 
 
 class GcsBridge:
@@ -46,7 +47,10 @@ class GcsBridge:
     two ticks counts at the next one even if the tracker is back to TRACKING by then. A clock that
     jumps back behind the held pose drops it too, and restarts the heartbeat, the send rate and
     the go-around hold on the new time-line.
-    Stage changes go to the GCS as STATUSTEXT.
+    Stage changes go to the GCS as STATUSTEXT. A link failure changes none of this: what the link
+    cannot send is dropped (``link_stats``), and at the first tick after frames go out again the
+    heartbeat and the current stage (a STATUSTEXT as for a stage change) are sent at once, since
+    the GCS may have missed both.
     """
 
     def __init__(self, config: GcsBridgeConfig, sender: MavlinkSender | None = None):
@@ -68,6 +72,10 @@ class GcsBridge:
     @property
     def stage(self) -> Stage:
         return self._machine.stage
+
+    @property
+    def link_stats(self) -> LinkStats:
+        return self._sender.stats
 
     def on_pose(self, stamp_s: float, position_cam, quat_cam, covariance, now_s: float) -> bool:
         """Take a tracker pose (FLU body in the camera optical frame, ROS 6×6 covariance).
@@ -139,6 +147,9 @@ class GcsBridge:
         self._forget_pose_ahead_of(now_s)
         if now_s < max(self._last_heartbeat, self._last_position_send):  # the clock jumped back
             self._last_heartbeat = self._last_position_send = -math.inf
+        restored = self._sender.poll()
+        if restored:
+            self._last_heartbeat = -math.inf
         fresh = (
             self._pose is not None
             and self._tracker_state == TRACKER_TRACKING
@@ -154,7 +165,7 @@ class GcsBridge:
             self._sender.send_heartbeat()
             self._last_heartbeat = now_s
             sent.append("HEARTBEAT")
-        if stage != before:
+        if stage != before or restored:
             self._sender.send_statustext(status_text(stage, geometry), status_severity(stage))
             sent.append("STATUSTEXT")
         period = 1.0 / self._cfg.mavlink.rate_hz

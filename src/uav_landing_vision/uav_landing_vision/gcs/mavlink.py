@@ -1,4 +1,4 @@
-"""MAVLink 2 encoding and transport (pymavlink, ``common`` dialect).
+"""MAVLink 2 encoding (pymavlink, ``common`` dialect); the link it goes out on is ``gcs.link``.
 
 Every position message carries the landing-frame pose of ``frames.LandingPose``: x toward
 the bow, y starboard, z down, origin at the net; attitude of the UAV's FRD body;
@@ -7,6 +7,7 @@ quaternions on the wire are w-first. ``time_usec`` is the image time.
 
 import math
 import string
+import time
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +17,7 @@ from pymavlink.dialects.v20 import common as mav2
 from ..geometry import quat_conjugate, quat_to_euler_zyx
 from .config import MavlinkConfig
 from .frames import LandingPose, euler_covariance, target_in_body
+from .link import LinkStats, open_transport
 
 ODOMETRY_FRAME_IDS = {
     "LOCAL_FRD": mav2.MAV_FRAME_LOCAL_FRD,
@@ -23,6 +25,7 @@ ODOMETRY_FRAME_IDS = {
     "MOCAP_NED": 14,  # MAV_FRAME_MOCAP_NED, now MAV_FRAME_RESERVED_14 in common.xml
 }
 _NAN_21 = [math.nan] + [0.0] * 20  # "unknown" covariance: NaN in the first element
+SIGNING_EPOCH_S = 1420070400  # 2015-01-01, the origin of MAVLink 2 signing timestamps
 
 
 def load_signing_key(path: str | Path) -> bytes:
@@ -33,19 +36,28 @@ def load_signing_key(path: str | Path) -> bytes:
     return bytes.fromhex(text)
 
 
+def encoder(file, system_id: int, component_id: int, key: bytes | None = None, link_id: int = 0):
+    """A MAVLink 2 ``common`` encoder that writes each frame with ``file.write``, signing it if ``key``
+    (as pymavlink's ``setup_signing``: the timestamp in 10 µs units since 2015-01-01)."""
+    mav = mav2.MAVLink(file, srcSystem=system_id, srcComponent=component_id)
+    mav.robust_parsing = True
+    if key is not None:
+        mav.signing.secret_key, mav.signing.sign_outgoing, mav.signing.link_id = key, True, link_id
+        mav.signing.timestamp = int((max(time.time(), SIGNING_EPOCH_S) - SIGNING_EPOCH_S) * 100_000)
+    return mav
+
+
 def open_link(connection: str, system_id: int, component_id: int, key: bytes | None = None, link_id: int = 0):
-    """A pymavlink connection speaking MAVLink 2 with ``common``, signing outgoing frames if ``key``.
+    """A pymavlink connection speaking MAVLink 2 with ``common``, signing outgoing frames if ``key``
+    (the GCS's end in tests and tools; the station sends through ``MavlinkSender``).
 
     The dialect object is set on the connection, so the process-wide pymavlink dialect and
     the ``MAVLINK20`` environment variable are left alone.
     """
     conn = mavutil.mavlink_connection(connection, source_system=system_id, source_component=component_id)
-    conn.mav = mav2.MAVLink(conn, srcSystem=system_id, srcComponent=component_id)
-    conn.mav.robust_parsing = True
+    conn.mav = encoder(conn, system_id, component_id, key, link_id)
     conn.WIRE_PROTOCOL_VERSION = "2.0"
     conn.first_byte = False  # no auto-switch of the global dialect on the first byte received
-    if key is not None:
-        conn.setup_signing(key, sign_outgoing=True, link_id=link_id)
     return conn
 
 
@@ -100,27 +112,37 @@ def _landing_target(mav, usec: int, pose: LandingPose):
 
 
 class MavlinkSender:
-    """The station's MAVLink output: heartbeat, position messages, status texts."""
+    """The station's MAVLink output: heartbeat, position messages, status texts, over a link
+    that never blocks or raises (``gcs.link``): what it cannot send is dropped and counted."""
 
     def __init__(self, cfg: MavlinkConfig):
         key = load_signing_key(cfg.signing_key_file) if cfg.signing_key_file else None
         self._cfg = cfg
-        self.conn = open_link(cfg.connection, cfg.system_id, cfg.component_id, key, cfg.signing_link_id)
+        self.link = open_transport(cfg.connection)
+        self.mav = encoder(self.link, cfg.system_id, cfg.component_id, key, cfg.signing_link_id)
+
+    @property
+    def stats(self) -> LinkStats:
+        return self.link.stats
+
+    def poll(self) -> bool:
+        """Service the link (see ``Link.poll``): True once when it sends again after an outage."""
+        return self.link.poll()
 
     def send_pose(self, pose: LandingPose, stamp_s: float) -> list[str]:
-        msgs = encode_pose(self.conn.mav, self._cfg.messages, pose, stamp_s, self._cfg.odometry_frame)
+        msgs = encode_pose(self.mav, self._cfg.messages, pose, stamp_s, self._cfg.odometry_frame)
         for m in msgs:
-            self.conn.mav.send(m)
+            self.mav.send(m)
         return [m.get_type() for m in msgs]
 
     def send_heartbeat(self) -> None:
-        self.conn.mav.heartbeat_send(
+        self.mav.heartbeat_send(
             mav2.MAV_TYPE_ONBOARD_CONTROLLER, mav2.MAV_AUTOPILOT_INVALID, 0, 0, mav2.MAV_STATE_ACTIVE
         )
 
     def send_statustext(self, text: str, severity: int) -> None:
         """One STATUSTEXT (at most 50 ASCII characters; longer text is cut)."""
-        self.conn.mav.statustext_send(severity, text.encode("ascii", "replace")[:50])
+        self.mav.statustext_send(severity, text.encode("ascii", "replace")[:50])
 
     def close(self) -> None:
-        self.conn.close()
+        self.link.close()

@@ -11,7 +11,12 @@ camera's (``camera.frame_id``: the mount describes that camera only) or an unkno
 is logged and dropped; no position is sent for it. So are every pose and status while
 ``uav/pose`` or ``uav/tracker_status`` has more than one publisher (a second tracker or graph on
 the domain, a bag replayed with its recorded poses): a status could then vouch for another
-tracker's pose. The service ``~/reset`` (std_srvs/Trigger) is the
+tracker's pose. The MAVLink link never stops the node (``gcs.link``): a GCS not up at start-up,
+gone, or no longer reading, or a radio unplugged, leaves the ticks and the stage machine running;
+the frames not sent are dropped (``mavlink_dropped``, with the link's error in the log and on
+/diagnostics) and a TCP or serial link is reopened every second until it is back. ``mavlink_sent``
+counts what the bridge handed to the link, ``mavlink_written`` what went out. The service
+``~/reset`` (std_srvs/Trigger) is the
 operator's reset of the stage machine to LOITER (NO_RETURN holds until it, e.g. after recovery
 from the net).
 """
@@ -118,6 +123,21 @@ class GcsBridgeNode(LandingNode):
         self._guidance.publish(msg)
         self.counters["published"] += 1
         self.counters["mavlink_sent"] += len(result.sent)
+        self._report_link()
+
+    def _report_link(self) -> None:
+        """The link's counters (``mavlink_*``) on /diagnostics; frames it could not send count as
+        dropped, with the link's error (WARN on /diagnostics, logged at most once a second)."""
+        link = self._bridge.link_stats
+        connection = self.config.mavlink.connection
+        lost = link.dropped - self.counters["mavlink_dropped"]
+        if link.restored > self.counters["mavlink_restored"]:
+            self.get_logger().warning(f"MAVLink to '{connection}' sends again")
+        for key in ("written", "dropped", "failures", "restored"):
+            self.counters[f"mavlink_{key}"] = getattr(link, key)
+        self.counters["mavlink_up"] = int(link.up)
+        if lost:
+            self.drop(f"{lost} MAVLink frame(s) not sent to '{connection}': {link.last_error}", count=lost)
 
     def destroy_node(self):
         self._bridge.close()

@@ -1,0 +1,333 @@
+"""The MAVLink link failing during a landing, on real sockets and pseudo-terminals.
+
+The bridge must never raise, block or print from a tick because of its link, must keep its
+stage machine, count what it could not send, and, once the link is back, send again, starting
+with a heartbeat and the current stage (the STATUSTEXT of a stage change made during the
+outage never reached the GCS).
+"""
+
+import dataclasses
+import os
+import socket
+import struct
+import threading
+import time
+import tty
+
+import pytest
+from pymavlink.dialects.v20 import common as mav2
+from test_gcs_landing import CONFIG, feed, on_axis
+
+from uav_landing_vision.gcs import GcsBridge, Stage
+from uav_landing_vision.gcs.mavlink import MavlinkSender, open_link
+
+TICK_S = 0.1  # mavlink.rate_hz 10
+TICK_LIMIT_S = 0.02  # no tick may take longer (a blocked link would take seconds)
+
+
+def make_bridge(connection):
+    return GcsBridge(dataclasses.replace(CONFIG, mavlink=dataclasses.replace(CONFIG.mavlink, connection=connection)))
+
+
+def make_sender(connection):
+    return MavlinkSender(dataclasses.replace(CONFIG.mavlink, connection=connection))
+
+
+def finishes_within(seconds, fn):
+    """``fn()``, failing the test (not hanging it) if it has not returned within ``seconds``."""
+    out, done = {}, threading.Event()
+
+    def target():
+        try:
+            out["value"] = fn()
+        except BaseException as exc:  # noqa: BLE001 (re-raised in the test's thread)
+            out["error"] = exc
+        finally:
+            done.set()
+
+    threading.Thread(target=target, daemon=True).start()
+    assert done.wait(seconds), f"still blocked after {seconds} s"
+    if "error" in out:
+        raise out["error"]
+    return out.get("value")
+
+
+def parse(data: bytes) -> list:
+    parser = mav2.MAVLink(None)
+    parser.robust_parsing = True
+    return parser.parse_buffer(data) or []
+
+
+def assert_announced_once(messages):
+    """The GCS heard of the stage (LAND, entered while it was cut off) exactly once."""
+    texts = [m.text for m in messages if m.get_type() == "STATUSTEXT"]
+    assert len(texts) == 1 and texts[0].startswith("VISION LAND r=25.0m"), texts
+
+
+class Flight:
+    """A landing held 25 m out on the approach axis, in wall-clock time: a tracked pose before
+    every tick, at 10 Hz; ``pump`` runs the GCS's side between ticks."""
+
+    def __init__(self, bridge, pump=lambda: None):
+        self.bridge, self.pump = bridge, pump
+        self.t0 = time.monotonic()
+        self.longest = 0.0
+        self.stages = []
+
+    def run(self, seconds, until=lambda: False):
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline and not until():
+            t = 1000.0 + time.monotonic() - self.t0
+            feed(self.bridge, t - 0.02, on_axis(25.0))
+            start = time.monotonic()
+            stage = self.bridge.tick(t).guidance.stage
+            self.longest = max(self.longest, time.monotonic() - start)
+            self.stages.append(stage)
+            self.pump()
+            time.sleep(TICK_S)
+
+    def assert_landing_went_on(self):
+        assert self.stages[0] is Stage.APPROACH and set(self.stages[1:]) == {Stage.LAND}
+        assert self.longest < TICK_LIMIT_S, f"a tick took {self.longest * 1000:.0f} ms"
+
+
+def free_port(kind=socket.SOCK_STREAM) -> int:
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class TcpGcs:
+    """A GCS listening on TCP that reads everything it gets; it can go away and come back."""
+
+    def __init__(self, port=0, backlog=1):
+        self.listener = socket.socket()
+        self.listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        self.listener.bind(("127.0.0.1", port))
+        self.listener.listen(backlog)
+        self.listener.setblocking(False)
+        self.port = self.listener.getsockname()[1]
+        self.conn, self.data, self.reading, self.gone = None, b"", True, False
+
+    def pump(self):
+        if self.gone:
+            return
+        if self.conn is None:
+            try:
+                self.conn, _ = self.listener.accept()
+                self.conn.setblocking(False)
+            except BlockingIOError:
+                return
+        while self.reading:
+            try:
+                chunk = self.conn.recv(1 << 16)
+            except BlockingIOError:
+                return
+            if not chunk:
+                return
+            self.data += chunk
+
+    def pump_until_quiet(self, quiet_s=0.3):
+        while True:
+            size = len(self.data)
+            time.sleep(quiet_s)
+            self.pump()
+            if len(self.data) == size:
+                return
+
+    def messages(self):
+        return parse(self.data)
+
+    def go_away(self, reset=False):
+        if self.conn is not None:
+            if reset:  # RST instead of FIN
+                self.conn.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+            self.conn.close()
+        self.listener.close()
+        self.gone = True
+
+
+def test_udpin_answers_the_gcs_once_it_has_sent_a_packet():
+    """``udpin`` can only answer addresses it heard from: the bridge must read its socket. It
+    never did, so it never sent anything, whatever the GCS sent it."""
+    port = free_port(socket.SOCK_DGRAM)
+    bridge = make_bridge(f"udpin:127.0.0.1:{port}")
+    gcs = open_link(f"udpout:127.0.0.1:{port}", 255, 190)
+    got = []
+
+    def pump():
+        while (m := gcs.recv_match(blocking=False)) is not None:
+            got.append(m)
+
+    flight = Flight(bridge, pump)
+    flight.run(0.5)
+    assert not got
+    gcs.mav.heartbeat_send(mav2.MAV_TYPE_GCS, mav2.MAV_AUTOPILOT_INVALID, 0, 0, mav2.MAV_STATE_ACTIVE)
+    flight.run(3.0, until=lambda: {"HEARTBEAT", "STATUSTEXT", "ODOMETRY"} <= {m.get_type() for m in got})
+    bridge.close()
+    gcs.close()
+    flight.assert_landing_went_on()
+    assert_announced_once(got)  # the stage, announced once the GCS is heard
+    stats = bridge.link_stats
+    assert stats.dropped > 0 and "no GCS" in stats.last_error and stats.restored == 1 and stats.up
+
+
+@pytest.mark.parametrize("reset", [False, True], ids=["closed", "reset"])
+def test_a_tcp_gcs_that_goes_away_and_comes_back(capfd, reset):
+    """pymavlink printed a line per frame once the GCS had gone (stdout, not the node's log) and
+    never connected again."""
+    gcs = TcpGcs()
+    bridge = make_bridge(f"tcp:127.0.0.1:{gcs.port}")
+    flight = Flight(bridge, lambda: gcs.pump())
+    flight.run(0.5)
+    before = len(gcs.messages())
+    assert before >= 6
+    gcs.go_away(reset)
+    flight.run(1.5)
+    gcs = TcpGcs(gcs.port)
+    flight.run(4.0, until=lambda: {"HEARTBEAT", "STATUSTEXT", "ODOMETRY"} <= {m.get_type() for m in gcs.messages()})
+    bridge.close()
+    flight.assert_landing_went_on()
+    assert_announced_once(gcs.messages())
+    assert capfd.readouterr() == ("", "")
+    stats = bridge.link_stats
+    assert stats.failures >= 1 and stats.dropped > 0 and stats.restored == 1 and stats.up
+
+
+def test_a_tcp_gcs_not_up_at_start_up():
+    """The bridge would not start (ConnectionRefusedError after 2 s of retries) without its GCS."""
+    port = free_port()
+    bridge = finishes_within(1.5, lambda: make_bridge(f"tcp:127.0.0.1:{port}"))
+    flight = Flight(bridge)
+    flight.run(0.5)
+    assert "refused" in bridge.link_stats.last_error and bridge.link_stats.dropped > 0
+    gcs = TcpGcs(port)
+    flight.pump = gcs.pump
+    flight.run(4.0, until=lambda: {"HEARTBEAT", "STATUSTEXT", "ODOMETRY"} <= {m.get_type() for m in gcs.messages()})
+    bridge.close()
+    flight.assert_landing_went_on()
+    assert_announced_once(gcs.messages())
+
+
+def test_a_tcp_gcs_that_does_not_answer_never_blocks_the_tick():
+    """A GCS whose host is gone does not answer the connection (its SYNs are dropped, as here by a
+    full accept queue): a blocking connect waits minutes."""
+    gcs = TcpGcs(backlog=0)
+    filler = socket.create_connection(("127.0.0.1", gcs.port))  # fills the accept queue
+    bridge = finishes_within(3.0, lambda: make_bridge(f"tcp:127.0.0.1:{gcs.port}"))
+    flight = Flight(bridge)
+    finishes_within(10.0, lambda: flight.run(3.5))  # past the connection timeout and a new attempt
+    bridge.close()
+    filler.close()
+    gcs.go_away()
+    flight.assert_landing_went_on()
+    assert bridge.link_stats.failures >= 1 and "no answer" in bridge.link_stats.last_error
+
+
+def flood(sender, seconds=10.0):
+    """STATUSTEXTs as fast as the link takes them until it reports one dropped; the longest call."""
+    longest, deadline = 0.0, time.monotonic() + seconds
+    while sender.stats.dropped == 0 and time.monotonic() < deadline:
+        start = time.monotonic()
+        sender.send_statustext("VISION LAND r=25.0m gs=+0.0 lat=+0.0deg", mav2.MAV_SEVERITY_NOTICE)
+        longest = max(longest, time.monotonic() - start)
+    return longest
+
+
+def test_a_tcp_gcs_that_stops_reading():
+    """A full send buffer: frames are dropped whole and counted, never cut (a partial send used to
+    leave half a frame on the stream, which the GCS's parser then discards with the next one)."""
+    gcs = TcpGcs()
+    gcs.reading = False
+    sender = make_sender(f"tcp:127.0.0.1:{gcs.port}")
+    gcs.pump()
+    assert finishes_within(30.0, lambda: flood(sender)) < TICK_LIMIT_S
+    assert sender.stats.dropped == 1 and sender.stats.up and "not reading" in sender.stats.last_error
+    gcs.reading = True
+    gcs.pump_until_quiet()
+    sender.send_heartbeat()  # after what was left of a cut frame, if one was
+    gcs.pump_until_quiet()
+    sender.close()
+    got = gcs.messages()
+    assert not [m for m in got if m.get_type() == "BAD_DATA"]
+    assert len(got) == sender.stats.written
+
+
+class Radio:
+    """A telemetry radio on a pseudo-terminal behind a fixed path (as udev's /dev/serial/by-id
+    links): unplugged, its tty hangs up; plugged back, it is a new tty behind the same path."""
+
+    def __init__(self, path):
+        self.path, self.master, self.data = path, None, b""
+        self.plug()
+
+    def plug(self):
+        self.master, slave = os.openpty()
+        tty.setraw(self.master)
+        os.set_blocking(self.master, False)
+        tmp = f"{self.path}.new"
+        os.symlink(os.ttyname(slave), tmp)
+        os.replace(tmp, self.path)
+        os.close(slave)
+
+    def unplug(self):
+        os.close(self.master)
+        self.master = None
+
+    def pump(self):
+        while self.master is not None:
+            try:
+                chunk = os.read(self.master, 1 << 16)
+            except (BlockingIOError, OSError):  # EIO while no one has the tty open
+                return
+            if not chunk:
+                return
+            self.data += chunk
+
+    def messages(self):
+        return parse(self.data)
+
+
+def test_a_serial_radio_unplugged_and_plugged_back(tmp_path):
+    radio = Radio(tmp_path / "radio")
+    bridge = make_bridge(f"{radio.path},57600")
+    flight = Flight(bridge, radio.pump)
+    flight.run(0.5)
+    assert len(radio.messages()) >= 6
+    radio.unplug()
+    flight.run(1.5)
+    radio = Radio(radio.path)
+    flight.pump = radio.pump
+    flight.run(4.0, until=lambda: {"HEARTBEAT", "STATUSTEXT", "ODOMETRY"} <= {m.get_type() for m in radio.messages()})
+    bridge.close()
+    flight.assert_landing_went_on()
+    assert_announced_once(radio.messages())
+    stats = bridge.link_stats
+    assert stats.failures >= 1 and stats.dropped > 0 and stats.restored == 1 and stats.up
+
+
+def test_a_serial_radio_that_stops_draining_never_blocks_the_tick(tmp_path):
+    """The tty's output buffer full (a radio that stopped taking data): the write blocked until
+    someone read the other end, and the node's executor with it."""
+    radio = Radio(tmp_path / "radio")
+    sender = make_sender(f"{radio.path},57600")
+    assert finishes_within(30.0, lambda: flood(sender)) < TICK_LIMIT_S
+    assert sender.stats.dropped == 1 and sender.stats.up and "not reading" in sender.stats.last_error
+    radio.pump()
+    sender.send_heartbeat()
+    radio.pump()
+    sender.close()
+    got = radio.messages()
+    assert not [m for m in got if m.get_type() == "BAD_DATA"] and len(got) == sender.stats.written
+
+
+@pytest.mark.parametrize("connection, message", [
+    ("tcp:127.0.0.1", "HOST:PORT"),
+    ("udpin:127.0.0.1:port", "HOST:PORT"),
+    ("udpbcast:127.0.0.1:14550", "udpout:HOST:PORT, udpin:HOST:PORT, tcp:HOST:PORT or a serial device"),
+    ("/dev/ttyUSB0,fast", "baud rate"),
+    ("/dev/ttyUSB0,12345", "baud rate"),
+])
+def test_malformed_connections_are_refused_at_start_up(connection, message):
+    with pytest.raises(ValueError, match=message):
+        make_bridge(connection)
