@@ -43,16 +43,16 @@ def test_launch_file_compiles(tmp_path):
 def test_launch_and_graph_start_the_same_nodes_each_with_script_module_and_parameters():
     launch = _assignments(LAUNCH)
     assert set(launch["NODES"]) | {launch["PLAYER"]} == set(GRAPH_NODES) and launch["PLAYER"] == PLAYER
-    assert "from uav_landing_vision.graph import replay_ready_topics" in LAUNCH.read_text()  # the graph's links
+    assert "from uav_landing_vision.graph import parse_remaps, replay_ready_topics" in LAUNCH.read_text()  # the graph's links and remaps
     scripts = _console_scripts()
     for name in GRAPH_NODES:
         assert scripts[name] == f"uav_landing_vision.nodes.{name}:main"
         assert (PACKAGE_DIR / "uav_landing_vision" / "nodes" / f"{name}.py").is_file()
 
 
-def _launch_nodes(monkeypatch, bag: str, config_dir: str) -> dict:
-    """The parameters of each node the launch file starts, with launch / launch_ros stood in for
-    by recorders (they are not installable here)."""
+def _launch_nodes(monkeypatch, bag: str, config_dir: str, remap: str = "", remappings: bool = False) -> dict:
+    """The parameters (or the remappings) of each node the launch file starts, with launch /
+    launch_ros stood in for by recorders (they are not installable here)."""
 
     class Recorded:
         def __init__(self, *args, **kwargs):
@@ -78,8 +78,10 @@ def _launch_nodes(monkeypatch, bag: str, config_dir: str) -> dict:
     spec = importlib.util.spec_from_file_location("landing_vision_launch", LAUNCH)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
-    actions = module._nodes({"bag": bag, "config_dir": config_dir})
+    actions = module._nodes({"bag": bag, "config_dir": config_dir, "remap": remap})
     nodes = [a.kwargs for a in actions if "executable" in a.kwargs]
+    if remappings:
+        return {n["name"]: n["remappings"] for n in nodes}
     return {n["name"]: {k: v for p in n["parameters"] if isinstance(p, dict) for k, v in p.items()} for n in nodes}
 
 
@@ -104,6 +106,31 @@ def test_launch_replay_runs_on_the_bags_clock_and_waits_for_the_links_the_graph_
     assert params[PLAYER]["ready_topics"] == graph_topics == [t for t in PIPELINE_TOPICS if t != "/uav/ground_truth"]
     live = _launch_nodes(monkeypatch, "", str(config))  # the live camera: wall time, no player
     assert set(live) == set(GRAPH_NODES) - {PLAYER} and not any(live.values())
+
+
+def test_launch_remaps_topics_in_every_node_as_the_graph_does(monkeypatch, tmp_path):
+    """A camera driver, or a recording, of other topic names: ``remap:=`` reaches every node, and a
+    replay's player waits for the remapped recorded links as ``uav-landing graph --remap`` does."""
+    import pytest
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    bag = tmp_path / "deck_cam"
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    with Writer(bag, version=9) as writer:
+        for topic, type_name in [("/deck_cam/image_raw", "sensor_msgs/msg/Image"), ("/deck_cam/camera_info", "sensor_msgs/msg/CameraInfo")]:
+            writer.write(writer.add_connection(topic, type_name, typestore=typestore), 1, b"\x00\x01\x00\x00")
+    config = str(Path(__file__).parents[2] / "config")
+    rule = "/deck_cam/image_raw:=/camera/image_raw,/deck_cam/camera_info:=/camera/camera_info"
+    remappings = _launch_nodes(monkeypatch, str(bag), config, rule, remappings=True)
+    expected = [("/deck_cam/image_raw", "/camera/image_raw"), ("/deck_cam/camera_info", "/camera/camera_info")]
+    assert set(remappings) == set(GRAPH_NODES) and all(r == expected for r in remappings.values())
+    ready = _launch_nodes(monkeypatch, str(bag), config, rule)[PLAYER]["ready_topics"]
+    assert ready == [t for t in PIPELINE_TOPICS if t != "/uav/ground_truth"]  # without the remap, the camera links are left out
+    assert "/camera/image_raw" not in _launch_nodes(monkeypatch, str(bag), config)[PLAYER]["ready_topics"]
+    assert all(r == [] for r in _launch_nodes(monkeypatch, "", config, remappings=True).values())
+    with pytest.raises(ValueError, match="expected FROM:=TO"):
+        _launch_nodes(monkeypatch, "", config, "/deck_cam/image_raw")
 
 
 def test_setup_installs_the_launch_file_parameter_files_models_and_shaders(tmp_path):

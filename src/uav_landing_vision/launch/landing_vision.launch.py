@@ -9,6 +9,9 @@ One process per node, parameters from the installed ``share/uav_landing_vision/c
   ``DRAIN_S`` after the bag ends (for the last frames' poses); without it the graph runs on the
   live camera.
 - ``config_dir:=/path`` reads the parameter files from another folder.
+- ``remap:=FROM:=TO[,FROM:=TO...]`` remaps topics (absolute names) in every node, as
+  ``uav-landing graph --remap``: e.g. ``remap:=/deck_cam/image_raw:=/camera/image_raw,/deck_cam/camera_info:=/camera/camera_info``
+  for a camera driver, or a recording, of other topic names (the player's pace and ready topics follow).
 """
 
 import os
@@ -23,7 +26,7 @@ from launch_ros.actions import Node
 
 # Every link of the graph that the bag can bring up: a replay waits for all of them, or its first
 # frames are lost to the nodes still loading their models.
-from uav_landing_vision.graph import replay_ready_topics
+from uav_landing_vision.graph import parse_remaps, replay_ready_topics
 
 PACKAGE = "uav_landing_vision"
 # The graph without the player, in start order (as uav_landing_vision.graph.GRAPH_NODES).
@@ -35,15 +38,17 @@ DRAIN_S = 2.0  # from the end of the bag to the shutdown (as uav-landing graph -
 def _nodes(context):
     config_dir = LaunchConfiguration("config_dir").perform(context)
     bag = LaunchConfiguration("bag").perform(context)
+    remaps = parse_remaps([r for r in LaunchConfiguration("remap").perform(context).split(",") if r.strip()])
 
     def node(name, extra=()):
         params = [os.path.join(config_dir, f"{name}.yaml"), *extra]
-        return Node(package=PACKAGE, executable=name, name=name, parameters=params, output="screen", emulate_tty=True)
+        return Node(package=PACKAGE, executable=name, name=name, parameters=params, remappings=list(remaps.items()),
+                    output="screen", emulate_tty=True)
 
     sim_time = [{"use_sim_time": True}] if bag else []  # a replay runs on the bag's /clock
     actions = [node(name, sim_time) for name in NODES]
     if bag:
-        player = node(PLAYER, [{"bag": bag, "clock": True, "ready_topics": list(replay_ready_topics(bag))}])
+        player = node(PLAYER, [{"bag": bag, "clock": True, "ready_topics": list(replay_ready_topics(bag, remaps))}])
         actions += [
             player,
             RegisterEventHandler(OnProcessExit(
@@ -58,6 +63,7 @@ def generate_launch_description():
     default_config = os.path.join(get_package_share_directory(PACKAGE), "config")
     return LaunchDescription([
         DeclareLaunchArgument("bag", default_value="", description="rosbag2 bag to replay (empty: live camera)"),
+        DeclareLaunchArgument("remap", default_value="", description="topic remappings of every node: FROM:=TO[,FROM:=TO...] (absolute names)"),
         DeclareLaunchArgument("config_dir", default_value=default_config, description="folder of the <node>.yaml parameter files"),
         OpaqueFunction(function=_nodes),
     ])
