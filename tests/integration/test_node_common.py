@@ -2,6 +2,7 @@
 in-process rclpy harness and bag/image helpers the other ``test_node_*`` modules import."""
 
 import time
+import types
 from dataclasses import dataclass
 from typing import Literal
 
@@ -20,6 +21,7 @@ from sensor_msgs.msg import CameraInfo, Image
 
 from uav_landing_vision.camera import CameraModel, camera_info_fields
 from uav_landing_vision.config import ConfigError
+from uav_landing_vision.nodes import base
 from uav_landing_vision.nodes.base import LandingNode, run_node
 from uav_landing_vision.nodes.image import ImageError, image_to_numpy, numpy_to_image
 from uav_landing_vision.nodes.qos import IMAGE_QOS, RELIABLE_QOS, SENSOR_QOS, qos_for_type
@@ -266,6 +268,25 @@ def test_a_name_given_both_as_a_value_and_as_a_group_fails_start_up(ros, leaf_fi
     overrides = [Parameter("inner", value="x"), Parameter("inner.gain", value=2.0)]
     with pytest.raises(ConfigError, match="parameter inner"):
         _Probe(context=ros.context, parameter_overrides=overrides if leaf_first else overrides[::-1])
+
+
+def test_drops_are_logged_once_a_second_for_each_kind_and_all_counted(ros, monkeypatch):
+    """A drop that repeats all the time (a MAVLink link down, every tick) must not hide the
+    others from the log: one node-wide throttle let the link's errors hide a rejected pose's."""
+    node = ros.add(_Probe(context=ros.context))
+    logged = []
+    monkeypatch.setattr(node, "get_logger", lambda: types.SimpleNamespace(error=logged.append))
+    clock = [1000.0]
+    monkeypatch.setattr(base.time, "monotonic", lambda: clock[0])
+    for _ in range(3):
+        node.drop("link down", count=2, kind="mavlink")
+        node.drop("pose in frame 'x'")
+    assert logged == ["dropped: link down", "dropped: pose in frame 'x'"]
+    assert node.counters["dropped"] == 9 and node.last_error == "pose in frame 'x'"
+    clock[0] += 1.0  # a second on: each kind is logged again
+    node.drop("link down", kind="mavlink")
+    node.drop("pose in frame 'y'")
+    assert logged[2:] == ["dropped: link down", "dropped: pose in frame 'y'"]
 
 
 def test_an_empty_list_parameter_is_an_empty_tuple(ros, tmp_path):

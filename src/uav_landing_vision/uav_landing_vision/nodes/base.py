@@ -8,6 +8,7 @@ validation, so the node reads the same file, with the same checks, as the CLI.
 import array
 import dataclasses
 import sys
+import time
 from collections import Counter
 
 import rclpy
@@ -22,6 +23,7 @@ from ..config import ConfigError, from_mapping
 from .qos import RELIABLE_QOS
 
 DIAGNOSTICS_PERIOD_S = 1.0
+DROP_LOG_PERIOD_S = 1.0  # a kind of drop is logged at most this often
 # Parameters every rclpy node declares itself; they are not part of a node's configuration.
 ROS_PARAMETERS = frozenset({"use_sim_time", "start_type_description_service"})
 # What an executor can raise when Ctrl-C / SIGTERM end a node (see stopped_by_shutdown).
@@ -41,6 +43,7 @@ class LandingNode(Node):
         self.counters = Counter(received=0, dropped=0, published=0)
         self.last_error = ""
         self._dropped_at_last_report = 0
+        self._drop_logged: dict[str, float] = {}  # kind of drop -> monotonic time it was last logged
         self._diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", RELIABLE_QOS)
         # Steady time: diagnostics keep flowing when use_sim_time is set and /clock is paused.
         self.create_timer(DIAGNOSTICS_PERIOD_S, self.publish_diagnostics, clock=Clock(clock_type=ClockType.STEADY_TIME))
@@ -114,12 +117,16 @@ class LandingNode(Node):
             self.drop(f"image stamped {stamp_ns(old.header.stamp)} ns: {waiting_for} within {limit} frames")
         held.append(frame)
 
-    def drop(self, reason: str, count: int = 1) -> None:
-        """Log why a message (or ``count`` items of one) is dropped, at most once a second per node,
-        and count them."""
+    def drop(self, reason: str, count: int = 1, kind: str = "message") -> None:
+        """Count a dropped message (or ``count`` items of one) and log why, at most once a second
+        for each ``kind``: a drop that repeats all the time (a MAVLink link down) must not hide
+        the others (a rejected pose) from the log."""
         self.counters["dropped"] += count
         self.last_error = reason
-        self.get_logger().error(f"dropped: {reason}", throttle_duration_sec=1.0)
+        now = time.monotonic()
+        if now - self._drop_logged.get(kind, float("-inf")) >= DROP_LOG_PERIOD_S:
+            self._drop_logged[kind] = now
+            self.get_logger().error(f"dropped: {reason}")
 
     def publish_diagnostics(self) -> None:
         """One ``DiagnosticStatus``: WARN when messages were dropped since the last report, else OK."""

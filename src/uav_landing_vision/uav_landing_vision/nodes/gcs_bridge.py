@@ -137,7 +137,7 @@ class GcsBridgeNode(LandingNode):
             self.counters[f"mavlink_{key}"] = getattr(link, key)
         self.counters["mavlink_up"] = int(link.up)
         if lost:
-            self.drop(f"{lost} MAVLink frame(s) not sent to '{connection}': {link.last_error}", count=lost)
+            self.drop(f"{lost} MAVLink frame(s) not sent to '{connection}': {link.last_error}", count=lost, kind="mavlink")
 
     def destroy_node(self):
         self._bridge.close()
