@@ -70,11 +70,11 @@ def graph_overrides(bag: Path, report_dir: Path, sequence: str) -> dict:
     """Per-node parameter overrides of a graph that replays ``bag`` frame by frame (paced on
     the tracker's status, nothing dropped, once every link of the graph is up, every node on the
     bag's time) and writes the evaluator's report to ``report_dir``."""
-    from .graph import GRAPH_NODES, replay_overrides
+    from .graph import GRAPH_NODES, replay_overrides, replay_ready_topics
     from .tracking.upf import load_tracker_config
 
     tracker = load_tracker_config()
-    overrides = replay_overrides(GRAPH_NODES, bag, wait_for_links=True)
+    overrides = replay_overrides(GRAPH_NODES, bag, replay_ready_topics(bag))
     overrides["bag_player"] += [("mode", "paced"), ("ack_topic", "uav/tracker_status"),
                                 ("ack_type", "uav_landing_msgs/msg/TrackerStatus")]
     overrides["evaluator"] += [("out_dir", str(report_dir)), ("sequence", sequence),

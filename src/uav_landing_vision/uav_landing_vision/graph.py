@@ -68,9 +68,13 @@ def replay_ready_topics(bag, remaps=None) -> tuple[str, ...]:
     from .sim.bag import BagError
 
     try:
-        recorded = _recorded_topics(bag)
+        return _ready_topics(_recorded_topics(bag), remaps)
     except BagError:
         return PIPELINE_TOPICS
+
+
+def _ready_topics(recorded: set[str], remaps=None) -> tuple[str, ...]:
+    """:func:`replay_ready_topics` of a bag with the topics ``recorded``."""
     remaps = remaps or {}
     played = {remaps.get(t, t) for t in recorded}
     return tuple(t for t in PIPELINE_TOPICS if t not in RECORDED_TOPICS or remaps.get(t, t) in played)
@@ -84,16 +88,16 @@ def _recorded_topics(bag) -> set[str]:
         return {conn.topic for conn in reader.connections}
 
 
-def replay_overrides(names, bag, wait_for_links: bool, remaps=None) -> dict:
+def replay_overrides(names, bag, ready_topics=None) -> dict:
     """Parameter overrides of the graph ``names`` replaying ``bag``: the player plays it and
     publishes ``/clock``, every other node runs on that clock (as with ``ros2 bag play --clock``: a
-    replayed pose is then not stale); with ``wait_for_links`` the player first waits for every link
-    the bag can bring up (:func:`replay_ready_topics`), or the first frames (and their ground
-    truth, which the evaluator then never counts) are lost to the nodes still starting."""
+    replayed pose is then not stale); given ``ready_topics`` (e.g. :func:`replay_ready_topics`),
+    the player first waits for those links, or the first frames (and their ground truth, which
+    the evaluator then never counts) are lost to the nodes still starting."""
     overrides = {n: [] if n == PLAYER else [("use_sim_time", "true")] for n in names}
     overrides[PLAYER] += [("bag", str(Path(bag).resolve())), ("clock", "true")]
-    if wait_for_links:
-        overrides[PLAYER].append(("ready_topics", ready_topics_parameter(replay_ready_topics(bag, remaps))))
+    if ready_topics is not None:
+        overrides[PLAYER].append(("ready_topics", ready_topics_parameter(ready_topics)))
     return overrides
 
 
@@ -182,7 +186,7 @@ def _plan(args, remaps=None) -> tuple[list[str], dict]:
     elif not args.bag.exists():
         raise ValueError(f"bag {args.bag} does not exist")
     else:
-        _check_bag(args.bag)
+        recorded = _readable_bag_topics(args.bag)
     if not names:
         raise ValueError("no node to run")
     if args.drain < 0 or args.stop_timeout <= 0:
@@ -191,7 +195,7 @@ def _plan(args, remaps=None) -> tuple[list[str], dict]:
         overrides = {n: [] for n in names}
     else:  # the whole graph waits for its links unless told which
         whole = set(names) == set(GRAPH_NODES) and not any(i.startswith(f"{PLAYER}:ready_topics=") for i in args.param)
-        overrides = replay_overrides(names, args.bag, wait_for_links=whole, remaps=remaps)
+        overrides = replay_overrides(names, args.bag, _ready_topics(recorded, remaps) if whole else None)
     for item in args.param:
         node, sep, assignment = item.partition(":")
         key, eq, value = assignment.partition("=")
@@ -206,12 +210,13 @@ def _plan(args, remaps=None) -> tuple[list[str], dict]:
     return names, overrides
 
 
-def _check_bag(bag) -> None:
-    """ValueError unless ``bag`` opens: a damaged one would fail the player while the others start."""
+def _readable_bag_topics(bag) -> set[str]:
+    """The topics of ``bag``; ValueError if it does not open: a damaged one would fail the player
+    while the others start."""
     from .sim.bag import BagError
 
     try:
-        _recorded_topics(bag)
+        return _recorded_topics(bag)
     except BagError as exc:
         raise ValueError(f"bag {bag} is not a readable rosbag2 bag: {exc}") from exc
 

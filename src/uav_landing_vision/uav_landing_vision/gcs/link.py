@@ -26,6 +26,7 @@ import socket
 import termios
 import time
 import tty
+from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
 REOPEN_PERIOD_S = 1.0
@@ -72,7 +73,7 @@ def _speed(baud: str) -> int:
     return speed
 
 
-class Link:
+class Link(ABC):
     """Counts what is sent and dropped; subclasses send (``_send``) and keep open (``_poll``)."""
 
     def __init__(self):
@@ -82,8 +83,9 @@ class Link:
         self._back = False  # a frame sent after an outage, not yet reported by poll()
 
     @property
+    @abstractmethod
     def up(self) -> bool:
-        raise NotImplementedError
+        """Whether it takes frames now, as far as the station can tell."""
 
     @property
     def stats(self) -> LinkStats:
@@ -118,14 +120,17 @@ class Link:
     def _failed(self, exc: OSError) -> None:
         self._last_error = str(exc)
 
+    @abstractmethod
     def _send(self, frame: bytes) -> bool:
-        raise NotImplementedError
+        """Hand ``frame`` to the operating system whole; False (with ``_last_error``) if it cannot now."""
 
+    @abstractmethod
     def _poll(self) -> None:
-        raise NotImplementedError
+        """Read what came in; reopen what failed when due."""
 
+    @abstractmethod
     def close(self) -> None:
-        raise NotImplementedError
+        """Close what is open."""
 
 
 class DatagramLink(Link):
@@ -231,17 +236,17 @@ class StreamLink(Link):
         if self._handle is not None:
             self._handle.close()
 
+    @abstractmethod
     def _connect(self):
         """A new handle and whether it is still connecting; OSError if it cannot be had."""
-        raise NotImplementedError
 
+    @abstractmethod
     def _write(self, data: bytes) -> int:
         """Bytes the kernel took (0 when its buffer is full)."""
-        raise NotImplementedError
 
+    @abstractmethod
     def _read(self) -> bytes | None:
         """What came in (b"" at the end of the stream), or None when nothing has."""
-        raise NotImplementedError
 
 
 class TcpLink(StreamLink):

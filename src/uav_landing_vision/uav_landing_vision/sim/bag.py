@@ -6,7 +6,7 @@ each per frame with the same header stamp (also the bag's record time).
 """
 
 import csv
-from contextlib import closing
+from contextlib import closing, contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -100,14 +100,22 @@ class BagError(ValueError):
     """A rosbag2 bag that cannot be opened, or read to its end."""
 
 
+@contextmanager
+def _as_bag_error():
+    """Turn whatever reading a bag raises into :class:`BagError`: rosbags passes a damaged
+    file's zstd, EOF and sqlite errors on as they are."""
+    try:
+        yield
+    except Exception as exc:
+        raise BagError(str(exc) or type(exc).__name__) from exc
+
+
 def open_bag(path) -> Reader:
     """The open reader of a bag (a rosbag2 folder, or one .mcap / .db3 file); :class:`BagError`
     (the reason) if it cannot be opened."""
-    try:
+    with _as_bag_error():
         reader = Reader(Path(path))
         reader.open()
-    except Exception as exc:  # rosbags passes a damaged file's zstd, EOF and sqlite errors on as they are
-        raise BagError(str(exc) or type(exc).__name__) from exc
     return reader
 
 
@@ -116,12 +124,10 @@ def bag_messages(reader: Reader, connections=()):
     file turns out to be damaged."""
     messages = reader.messages(connections=connections)
     while True:
-        try:
-            item = next(messages)
-        except StopIteration:
+        with _as_bag_error():
+            item = next(messages, None)
+        if item is None:
             return
-        except Exception as exc:  # as in open_bag
-            raise BagError(str(exc) or type(exc).__name__) from exc
         yield item
 
 
