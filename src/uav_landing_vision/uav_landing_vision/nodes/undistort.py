@@ -12,12 +12,15 @@ distinct calibration. Parameters (``config/undistort.yaml``):
 - ``camera_qos``: ``reliable`` (the graph's image QoS, ``qos.IMAGE_QOS``) or ``sensor_data``
   (best effort, to accept a camera driver that publishes best effort; frames may be lost).
 
-Dropped (logged, counted on ``/diagnostics``): images before any calibration, images whose
-size differs from the calibration's, unsupported encodings, malformed data, and unusable
+Images that come before the first usable calibration are held (the newest
+:data:`HELD_IMAGES`) and rectified once it comes: a camera_info may arrive a moment after the
+image it was sent with. Dropped (logged, counted on ``/diagnostics``): held images beyond
+those, images whose size differs from the calibration's, unsupported encodings, malformed data, and unusable
 ``camera_info`` messages (the previous calibration stays in use).
 """
 
 import sys
+from collections import deque
 from dataclasses import dataclass
 from typing import Literal
 
@@ -31,6 +34,7 @@ from .calibration import Calibration
 from .image import ImageError, image_to_numpy, numpy_to_image
 from .qos import IMAGE_QOS, SENSOR_QOS
 
+HELD_IMAGES = 5  # images kept while no calibration is usable, as many as the image QoS keeps
 _INTERPOLATION = {"nearest": cv2.INTER_NEAREST, "linear": cv2.INTER_LINEAR, "cubic": cv2.INTER_CUBIC}
 
 
@@ -48,6 +52,7 @@ class Undistort(LandingNode):
         self._camera = None
         self._maps = None
         self._calibration = Calibration()
+        self._uncalibrated = deque()  # (image,) received before a usable calibration, oldest first
         self._image_pub = self.create_publisher(Image, "camera/image_rect", IMAGE_QOS)
         self._info_pub = self.create_publisher(CameraInfo, "camera/camera_info_rect", IMAGE_QOS)
         camera_qos = IMAGE_QOS if self.config.camera_qos == "reliable" else SENSOR_QOS
@@ -57,7 +62,6 @@ class Undistort(LandingNode):
             except CameraInfoError as exc:
                 raise ConfigError(f"camera_info_file: {exc}") from exc
         else:
-            # Created before the image subscription: when both are ready, camera_info is taken first.
             self.create_subscription(CameraInfo, "camera/camera_info", self._on_camera_info, camera_qos)
         self.create_subscription(Image, "camera/image_raw", self._on_image, camera_qos)
 
@@ -75,14 +79,20 @@ class Undistort(LandingNode):
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
         self.counters["camera_info_received"] += 1
-        self.take_camera_info(self._calibration, msg, use=self._use_camera)
+        if self.take_camera_info(self._calibration, msg, use=self._use_camera):
+            held, self._uncalibrated = self._uncalibrated, deque()
+            for (image,) in held:
+                self._rectify(image)
 
     def _on_image(self, msg: Image) -> None:
         self.counters["received"] += 1
-        camera = self._camera
-        if camera is None:
-            self.drop(self._calibration.waiting_for("image before any camera_info"))
+        if self._camera is None:
+            self.hold(self._uncalibrated, (msg,), HELD_IMAGES, self._calibration.waiting_for("no usable camera_info"))
             return
+        self._rectify(msg)
+
+    def _rectify(self, msg: Image) -> None:
+        camera = self._camera
         if (msg.width, msg.height) != (camera.width, camera.height):
             self.drop(f"image is {msg.width}x{msg.height} but the calibration is {camera.width}x{camera.height}")
             return
