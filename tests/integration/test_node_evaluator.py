@@ -83,11 +83,13 @@ def test_report_when_the_frame_count_is_reached_lost_frames_counted(ros, tmp_pat
     by_depth = tables.split("median error by true depth")[1].split("\n\n")[0].splitlines()
     assert by_depth[-1].split()[0] == "all" and by_depth[-1].endswith("0.30 | 0.00 (4)")
     # 95 % region of 3 dof: NEES <= 7.81; position errors 0.1, 0.2 (inside) and 0.4, 0.5 m (outside) at σ 0.1 m
-    coverage = {line.split()[0]: line.split()[-3:] for line in tables.split("95 % region")[1].splitlines()[2:]}
+    coverage = {line.split()[0]: line.split()[-3:] for line in tables.split("95 % region")[1].split("\n\n")[0].splitlines()[2:]}
     assert coverage["0-8"] == ["0/2", "|", "2/2"] and coverage["8-15"] == ["2/2", "|", "2/2"]
     assert coverage["all"] == ["2/4", "|", "4/4"]
     assert len(read_pose_csv(out / "estimates.csv").stamps_ns) == 5  # frames 0, 1, 3, 4, 7
     assert "INCOMPLETE" not in tables
+    # A replay's truth precedes its pose: a pose without one means a truth was lost, so the report names it.
+    assert tables.rstrip().endswith(f"UNSCORED: 1 poses without ground truth, stamped (ns) {stamp_ns(truth_msg(7).header.stamp)}")
 
 
 def test_a_report_of_fewer_frames_than_expected_says_so(ros, tmp_path):

@@ -149,6 +149,12 @@ class EvaluatorNode(LandingNode):
             short = f"INCOMPLETE: {len(truth.stamps_ns)} of the {cfg.frames} ground-truth frames expected were received"
             self.get_logger().warn(short)
             appendix = f"{appendix}\n\n{short}"
+        if self._without_truth:  # a replay's truth precedes its pose: these truths were lost or never recorded
+            stamps = list(self._without_truth)
+            unscored = (f"UNSCORED: {len(stamps)} poses without ground truth, stamped (ns) "
+                        f"{', '.join(map(str, stamps[:5]))}{' ...' if len(stamps) > 5 else ''}")
+            self.get_logger().warn(unscored)
+            appendix = f"{appendix}\n\n{unscored}"
         text = write_report(out, cfg.sequence, {cfg.variant: errors}, appendix=appendix)
         save_summary(out / "summary.json", make_summary(cfg.sequence, len(truth.stamps_ns), {cfg.variant: variant_summary(errors)}))
         write_pose_csv(out / "estimates.csv", estimates)
