@@ -208,6 +208,28 @@ def test_paced_playback_holds_the_next_frames_camera_info_and_truth_until_the_ac
     assert ros.spin_until(lambda: len(infos) == FRAMES and len(truths) == FRAMES)
 
 
+def test_paced_playback_publishes_the_clock_again_while_a_frame_waits(ros, playbacks, tmp_path):
+    """Nodes take /clock best effort (rclpy's time source): with one /clock per message, a lost one
+    left the GCS bridge's clock two frames behind the poses of a replay, which it then dropped as
+    ahead of its clock. While frame 0 waits (held over one more /diagnostics report, about 1 s),
+    its bag time goes out again and again; /clock never goes past it."""
+    frames = ros.collect(Image, "/camera/image_raw", IMAGE_QOS)
+    clocks = ros.collect(Clock, "/clock", RELIABLE_QOS)
+    reports = ros.collect(DiagnosticArray, "/diagnostics", RELIABLE_QOS)
+    ack_pub = ros.probe.create_publisher(PoseStamped, "test/ack", RELIABLE_QOS)
+    playback = Playback(ros, _bag(tmp_path), mode="paced", clock=True, ack_topic="test/ack",
+                        ack_type="geometry_msgs/msg/PoseStamped", ack_timeout_s=60.0, ready_topics=["/clock"])
+    playbacks.append(playback.start())
+    assert ros.spin_until(lambda: len(frames) == 1)
+    held = len(reports)
+    assert ros.spin_until(lambda: len(reports) > held)
+    first = stamp_ns(frames[0].header.stamp)
+    assert len(clocks) >= 5 and {stamp_ns(c.clock) for c in clocks} == {first}
+    acknowledge_every_frame(ros, playback, frames, ack_pub)
+    stamps = [stamp_ns(c.clock) for c in clocks]
+    assert stamps == sorted(stamps) and stamps[-1] == stamp_ns(frames[-1].header.stamp)
+
+
 def test_paced_playback_goes_on_after_an_ack_timeout(ros, playbacks, tmp_path):
     frames = ros.collect(Image, "/camera/image_raw", IMAGE_QOS)
     ack_pub = ros.probe.create_publisher(PoseStamped, "test/ack", RELIABLE_QOS)

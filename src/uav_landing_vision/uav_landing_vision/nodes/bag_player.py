@@ -27,7 +27,9 @@ Before playing, the player waits (up to ``ready_timeout_s``) until every topic o
 ``ready_topics`` has a subscriber and a publisher and, in paced mode, until ``pace_topic``
 has a subscriber and ``ack_topic`` a publisher; a paced player that is not ready by then
 exits with code 1. ``clock: true`` publishes the bag time on ``/clock`` before each message
-(the latest so far: it never goes back).
+(the latest so far: it never goes back) and again at least every ``SPIN_S`` while a paced frame waits for
+its acknowledgement: nodes take ``/clock`` best effort (rclpy's time source), and one lost
+message left a node's clock behind the frames it was given.
 A missing or unreadable bag fails start-up (exit code 2).
 """
 
@@ -50,6 +52,7 @@ from ..sim.bag import BagError, bag_messages, open_bag
 from .base import LandingNode, run_node, stamp_ns
 from .qos import RELIABLE_QOS, qos_for_type
 
+SPIN_S = 0.1  # while a paced frame waits: how long each spin may wait, and how often /clock is published again
 ACKED_FLUSH_TIMEOUT_S = 5.0  # at the end, how long reliable topics may take to be acknowledged
 FRAME_LAG_NS = 500_000_000  # how much later than its frame a frame's camera_info or truth may be recorded
 
@@ -94,6 +97,7 @@ class BagPlayer(LandingNode):
             self._add_publisher(conn)
         self._pace = self._bag_topic(_resolved(self, "pace_topic", cfg.pace_topic))  # None: the bag has no frames
         self._clock_pub = self.create_publisher(Clock, "/clock", RELIABLE_QOS) if cfg.clock else None
+        self._clock_ns = 0  # the bag time last published on /clock
         self._pending = None  # stamp (ns) of the paced frame awaiting its acknowledgement
         self._acked = set()
         if cfg.mode == "paced":
@@ -141,7 +145,6 @@ class BagPlayer(LandingNode):
         pending_t_ns = None  # bag time of the pending frame: later messages wait for its acknowledgement
         frames = 0
         total = sum(c.msgcount for c in self._reader.connections if c.topic == self._pace)
-        clock_ns = 0
         try:
             for conn, t_ns, raw, msg in self._messages():
                 is_frame = paced and conn.topic == self._pace
@@ -151,9 +154,7 @@ class BagPlayer(LandingNode):
                     if first_ns is None:
                         first_ns, start = t_ns, time.monotonic()
                     _spin_until(executor, start + (t_ns - first_ns) * 1e-9 / self.config.rate)
-                if self._clock_pub is not None:  # never back: a frame may follow its later-recorded camera_info
-                    clock_ns = max(clock_ns, t_ns)
-                    self._clock_pub.publish(Clock(clock=Time(sec=clock_ns // 1_000_000_000, nanosec=clock_ns % 1_000_000_000)))
+                self._publish_clock(t_ns)
                 self._players[conn.topic].publish(raw)
                 self.counters["published"] += 1
                 if is_frame:
@@ -241,13 +242,22 @@ class BagPlayer(LandingNode):
         self.get_logger().warn(text + "; playing anyway")
         return True
 
+    def _publish_clock(self, t_ns: int = 0) -> None:
+        """With ``clock``, publish the latest bag time so far, ``t_ns`` or earlier (never back: a
+        frame may follow its later-recorded camera_info)."""
+        if self._clock_pub is None:
+            return
+        self._clock_ns = max(self._clock_ns, t_ns)
+        self._clock_pub.publish(Clock(clock=Time(sec=self._clock_ns // 1_000_000_000, nanosec=self._clock_ns % 1_000_000_000)))
+
     def _wait_for_ack(self, executor) -> None:
         """Wait for the acknowledgement of the pending frame (if any), at most ``ack_timeout_s``."""
         if self._pending is None:
             return
         deadline = time.monotonic() + self.config.ack_timeout_s
         while self._pending not in self._acked and time.monotonic() < deadline:
-            executor.spin_once(timeout_sec=0.1)
+            self._publish_clock()
+            executor.spin_once(timeout_sec=SPIN_S)
         if self._pending in self._acked:
             self.counters["acknowledged"] += 1
         else:
