@@ -227,3 +227,48 @@ def test_a_node_that_exits_on_its_own_stops_the_graph_failing_only_on_an_error(m
     assert graph.procs["undistort"].returncode == -signal.SIGINT and graph.procs["evaluator"].returncode == code
     assert ("all nodes stopped cleanly" in output) == (code == 0)
     assert (f"failed: evaluator (exit code {code})" in output) == (code != 0)
+
+
+def test_a_node_that_ignores_sigint_and_sigterm_prints_where_it_hangs_before_sigkill(monkeypatch, capsys, tmp_path):
+    """A node stuck in its shutdown (seen once: the GCS bridge of an e2e run) was killed without a
+    trace of where it was."""
+    hung = ("import faulthandler, signal, time\n"
+            "faulthandler.register(signal.SIGUSR1, all_threads=True)\n"
+            "signal.signal(signal.SIGINT, signal.SIG_IGN); signal.signal(signal.SIGTERM, signal.SIG_IGN)\n"
+            "def stuck_in_shutdown():\n    time.sleep(60)\n"
+            "print('ready', flush=True); stuck_in_shutdown()")
+    _fake_nodes(monkeypatch, {"gcs_bridge": hung, "evaluator": "import time; time.sleep(0.5)"})
+    graph = graph_module.Graph(["gcs_bridge", "evaluator"], tmp_path, {"gcs_bridge": [], "evaluator": []}, dict(os.environ), stop_timeout=0.5)
+    assert graph.run() == 1
+    output = capsys.readouterr().out
+    assert "gcs_bridge still running 0.5 s after the last signal; sending SIGKILL after SIGUSR1 (its threads' stacks)" in output
+    assert "[gcs_bridge]" in output and "in stuck_in_shutdown" in output
+    assert graph.procs["gcs_bridge"].returncode == -signal.SIGKILL
+
+
+def test_a_node_prints_its_threads_stacks_on_sigusr1_and_runs_on(ros_domain_id, tmp_path):
+    cmd = node_command("evaluator", REPO / "config", [("out_dir", str(tmp_path / "report"))])
+    env = dict(os.environ, ROS_DOMAIN_ID=str(ros_domain_id))
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        deadline = time.monotonic() + 30.0
+        while not _catches(proc.pid, signal.SIGUSR1) and time.monotonic() < deadline and proc.poll() is None:
+            time.sleep(0.05)
+        assert _catches(proc.pid, signal.SIGUSR1), "the node never set up its SIGUSR1 handler"
+        proc.send_signal(signal.SIGUSR1)  # without the handler its default action ends the process
+        with pytest.raises(subprocess.TimeoutExpired):
+            proc.communicate(timeout=2.0)  # it runs on
+    finally:
+        proc.kill()
+    output, _ = proc.communicate(timeout=30)
+    assert "Current thread" in output and "uav_landing_vision/nodes/base.py" in output, output
+
+
+def _catches(pid: int, sig: int) -> bool:
+    """Whether process ``pid`` has a handler for ``sig`` (/proc/PID/status, SigCgt)."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+    except FileNotFoundError:
+        return False
+    caught = int(next(line.split()[1] for line in status.splitlines() if line.startswith("SigCgt:")), 16)
+    return bool(caught >> (sig - 1) & 1)

@@ -4,8 +4,10 @@ Each node of :data:`GRAPH_NODES` runs as
 ``python -m uav_landing_vision.nodes.<node> --ros-args --params-file <config>/<node>.yaml``
 (the same parameter files as ``launch/landing_vision.launch.py``). Their output is streamed
 with a ``[node]`` prefix. The graph stops, every node with SIGINT (then SIGTERM, then SIGKILL
-after ``--stop-timeout``), on Ctrl-C or SIGTERM, ``--drain`` seconds after ``bag_player`` has
-played the bag (for the last frame's messages downstream), or when a node exits on its own; the exit code is 0 only if every node ended cleanly.
+after ``--stop-timeout``; before SIGKILL, SIGUSR1 has a hung node print its threads' stacks), on
+Ctrl-C or SIGTERM, ``--drain`` seconds after ``bag_player`` has played the bag (for the last
+frame's messages downstream), or when a node exits on its own; the exit code is 0 only if every
+node ended cleanly.
 With ``--bag`` every node runs on the bag's time (``use_sim_time``, from the player's ``/clock``),
 as with ``ros2 bag play --clock``: the GCS bridge would otherwise find every replayed pose stale.
 A bag that cannot be opened is refused before any node starts. ``--remap FROM:=TO`` remaps a
@@ -54,6 +56,7 @@ PIPELINE_TOPICS = (
 RECORDED_TOPICS = ("/camera/image_raw", "/camera/camera_info", "/uav/ground_truth")
 _CLEAN_EXIT = (0, -signal.SIGINT, 128 + signal.SIGINT)
 _POLL_S = 0.1
+STACK_DUMP_S = 1.0  # a hung node's time to print its stacks (SIGUSR1) before SIGKILL
 
 
 def ready_topics_parameter(topics=PIPELINE_TOPICS) -> str:
@@ -293,7 +296,12 @@ class Graph:
         for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
             if sig != signal.SIGINT and running:
                 late = ", ".join(name for name, p in self.procs.items() if p in running)
-                self._say(f"{late} still running {self.stop_timeout:g} s after the last signal; sending {sig.name}")
+                dump = " after SIGUSR1 (its threads' stacks)" if sig == signal.SIGKILL else ""
+                self._say(f"{late} still running {self.stop_timeout:g} s after the last signal; sending {sig.name}{dump}")
+                if dump:
+                    for proc in running:
+                        proc.send_signal(signal.SIGUSR1)
+                    time.sleep(STACK_DUMP_S)
             for proc in running:
                 proc.send_signal(sig)
             deadline = time.monotonic() + self.stop_timeout

@@ -7,6 +7,8 @@ validation, so the node reads the same file, with the same checks, as the CLI.
 
 import array
 import dataclasses
+import faulthandler
+import signal
 import sys
 import time
 from collections import Counter
@@ -156,8 +158,11 @@ def run_node(factory, args=None, run=None) -> int:
     ``run(node, executor) -> int`` replaces the default spin (the bag player plays and returns).
     ROS arguments rcl cannot parse (a missing or malformed parameter file, an unknown argument) and
     a :class:`ConfigError` while building the node are start-up failures: logged, exit code 2.
-    Ctrl-C / SIGTERM end the node cleanly with exit code 0.
+    Ctrl-C / SIGTERM end the node cleanly with exit code 0. SIGUSR1 prints the stack of every
+    thread to stderr (``uav-landing graph`` sends it to a node that ignored SIGINT and SIGTERM,
+    before SIGKILL), so a node that hangs says where.
     """
+    faulthandler.register(signal.SIGUSR1, all_threads=True)
     try:
         rclpy.init(args=args)
     except RuntimeError as exc:  # rclpy's RCLError and UnknownROSArgsError
