@@ -1,8 +1,10 @@
 """eval-detector: its arguments are checked before any frame is read; Fig. 4.4 near ties are
-counted; an operating threshold below the curve's floor sees its boxes."""
+counted; an operating threshold below the curve's floor sees its boxes; a frame recorded twice is
+refused."""
 
 import numpy as np
 import pytest
+from bag_edits import record_frame_twice
 
 from uav_landing_vision.detection.detector import DetectorConfig
 from uav_landing_vision.detection.evaluation import evaluate_bag, label_frame, match_frame, summarise
@@ -167,3 +169,15 @@ def test_operating_point_figures_on_hand_made_frames():
     # every box, best first: 0.9 TP, 0.8 TP, 0.7 FP, 0.6 FP, 0.3 TP over 3 UAVs
     assert r["ap50"] == pytest.approx(1 / 3 + 1 / 3 + 1 / 3 * 3 / 5)
     assert (r["frames"], r["ground_truth_boxes"], r["ms_per_frame"]) == (3, 3, 3.0)
+
+
+def test_a_frame_recorded_twice_is_refused_naming_the_bag(tmp_path):
+    """It was scored twice: its box counted once more as found (or missed), its false positives too."""
+    from uav_landing_vision.sim import load_scenario, simulate
+
+    simulate(load_scenario("normal"), tmp_path / "bag", frames=3, progress=False)
+    stamps = record_frame_twice(tmp_path / "bag", tmp_path / "repeated")
+    with pytest.raises(ValueError) as refused:
+        evaluate_bag(tmp_path / "repeated", DetectorConfig(), tmp_path / "out.json", progress=False)
+    assert str(refused.value) == (f"{tmp_path / 'repeated'}: frame 2 is stamped {stamps[1]} ns, not after frame 1 "
+                                  f"({stamps[1]} ns): a recording's frames must have increasing header stamps")

@@ -7,6 +7,7 @@ import cv2
 import numpy as np
 import pytest
 import yaml
+from bag_edits import record_frame_twice
 from scipy.spatial.transform import Rotation
 
 from uav_landing_vision import resources
@@ -233,19 +234,8 @@ def test_the_run_releases_its_renderer_however_it_ends(bag, monkeypatch):
 def test_a_frame_stamped_no_later_than_the_one_before_is_refused_naming_the_bag(bag, tmp_path):
     """A recording with a frame twice (or out of order): one line naming the bag and the frame
     (it was the tracker's "reset() the tracker for a new time-line")."""
-    from rosbags.rosbag2 import Reader, Writer
-    from rosbags.typesys import Stores, get_typestore
-
     repeated = tmp_path / "repeated"
-    with Reader(bag) as reader, Writer(repeated, version=9) as writer:
-        typestore = get_typestore(Stores.ROS2_JAZZY)
-        conns = {c.id: writer.add_connection(c.topic, c.msgtype, typestore=typestore) for c in reader.connections}
-        messages = list(reader.messages())
-        stamps = sorted({t for _, t, _ in messages})
-        for conn, t_ns, raw in messages:
-            writer.write(conns[conn.id], t_ns, raw)
-            if t_ns == stamps[1]:  # frame 1 recorded once more, 1 ns later
-                writer.write(conns[conn.id], t_ns + 1, raw)
+    stamps = record_frame_twice(bag, repeated)
     with pytest.raises(SystemExit) as refused:
         main(["evaluate", "--bag", str(repeated), "--variants", "C1N0", "--particles", "30", "--roi-source", "oracle",
               "--frames", "4"])

@@ -148,7 +148,7 @@ def evaluate_bag(bag, config, json_path, png_path=None, progress: bool = True, t
     from tqdm import tqdm
 
     from ..model import fixed_wing_mesh
-    from ..sim.bag import iter_frames, read_camera, read_poses
+    from ..sim.bag import increasing_frames, read_camera, read_poses
     from .detector import Detector
 
     if truth_box not in LABEL_BOXES:
@@ -163,7 +163,7 @@ def evaluate_bag(bag, config, json_path, png_path=None, progress: bool = True, t
     detector = Detector(replace(config, score_threshold=min(0.01, config.score_threshold), max_detections=20))
     timed = Detector(config)  # the operating point and ms per frame: as configured (threshold, limit, verifier)
     frames = []
-    for stamp, raw in tqdm(iter_frames(bag), desc="eval-detector", unit="frame", total=len(truth),
+    for stamp, raw in tqdm(increasing_frames(bag), desc="eval-detector", unit="frame", total=len(truth),
                            disable=not progress):
         if stamp not in truth:
             raise ValueError(f"{bag}: frame {stamp} has no ground-truth pose")

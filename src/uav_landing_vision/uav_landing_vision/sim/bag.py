@@ -184,6 +184,19 @@ def iter_frames(path, topic: str = IMAGE_TOPIC):
         yield _stamp(msg.header), _decode_image(msg)
 
 
+def increasing_frames(path, topic: str = IMAGE_TOPIC):
+    """:func:`iter_frames`, each frame checked to be stamped after the one before: a frame recorded
+    twice or out of order raises ValueError naming both (an evaluation would score it twice, or
+    against the wrong motion)."""
+    last = None
+    for k, (stamp, image) in enumerate(iter_frames(path, topic)):
+        if last is not None and stamp <= last:
+            raise ValueError(f"{path}: frame {k} is stamped {stamp} ns, not after frame {k - 1} ({last} ns): "
+                             "a recording's frames must have increasing header stamps")
+        last = stamp
+        yield stamp, image
+
+
 def read_camera(path, topic: str = INFO_TOPIC) -> CameraModel:
     """The camera of the first camera_info message of a bag."""
     for msg in _topic_messages(path, topic, INFO_TYPES):
