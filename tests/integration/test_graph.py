@@ -229,6 +229,27 @@ def test_a_node_that_exits_on_its_own_stops_the_graph_failing_only_on_an_error(m
     assert (f"failed: evaluator (exit code {code})" in output) == (code != 0)
 
 
+def test_the_nodes_are_stopped_one_at_a_time_the_last_started_first(monkeypatch, capsys, tmp_path):
+    """All at once, a node's DDS teardown ran into the others': Fast DDS hung in one (loaded e2e runs)."""
+    def slow_to_stop(name):
+        return ("import signal, sys, time\n"
+                "def stop(*_):\n"
+                f"    print('stopping {name}', flush=True); time.sleep(0.3); print('stopped {name}', flush=True); sys.exit(0)\n"
+                "signal.signal(signal.SIGINT, stop)\n"
+                f"open({str(tmp_path / name)!r}, 'w').close()\n"
+                "time.sleep(60)")
+    names = ["undistort", "pose_boosting", "evaluator"]
+    ready = " and ".join(f"os.path.exists({str(tmp_path / n)!r})" for n in names)
+    # the node that ends the graph exits once the others can be stopped
+    ends = f"import os, time\nwhile not ({ready}):\n    time.sleep(0.05)"
+    _fake_nodes(monkeypatch, {**{n: slow_to_stop(n) for n in names}, "detector": ends})
+    graph = graph_module.Graph([*names, "detector"], tmp_path, {n: [] for n in [*names, "detector"]}, dict(os.environ), stop_timeout=5.0)
+    assert graph.run() == 0
+    lines = [line.split("] ", 1)[1] for line in capsys.readouterr().out.splitlines() if " stop" in line and line.startswith("[") and not line.startswith("[graph]")]
+    assert lines == ["stopping evaluator", "stopped evaluator", "stopping pose_boosting", "stopped pose_boosting",
+                     "stopping undistort", "stopped undistort"]
+
+
 def test_a_node_that_ignores_sigint_and_sigterm_prints_where_it_hangs_before_sigkill(monkeypatch, capsys, tmp_path):
     """A node stuck in its shutdown (seen once: the GCS bridge of an e2e run) was killed without a
     trace of where it was."""

@@ -1,9 +1,13 @@
 """Shared node pieces (image conversion, QoS, stamp matching, parameters → config, /diagnostics), and the
 in-process rclpy harness and bag/image helpers the other ``test_node_*`` modules import."""
 
+import os
+import subprocess
+import sys
 import time
 import types
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Literal
 
 import numpy as np
@@ -338,6 +342,35 @@ def test_run_node_exits_0_when_a_callback_publishes_after_the_shutdown(capsys, r
     monkeypatch.setenv("ROS_DOMAIN_ID", str(ros_domain_id))
     assert run_node(_PublishesAfterShutdown, ["--ros-args"]) == 0
     assert not rclpy.ok()
+
+
+HANGS_IN_TEARDOWN = """
+import sys, time
+from uav_landing_vision.nodes import base
+base.TEARDOWN_LIMIT_S = 1.0
+
+class HangsInTeardown(base.LandingNode):
+    def __init__(self, **kwargs):
+        super().__init__("teardown_probe", **kwargs)
+        self.create_timer(0.01, self.context.shutdown)  # as Ctrl-C does
+
+    def destroy_node(self):  # as Fast DDS's participant teardown once did, where no signal reaches it
+        def stuck_in_teardown():
+            time.sleep(60)
+        stuck_in_teardown()
+
+sys.exit(base.run_node(HangsInTeardown, ["--ros-args"]))
+"""
+
+
+def test_a_teardown_that_hangs_ends_the_process_printing_where(ros_domain_id):
+    """Seen in loaded e2e runs: the GCS bridge stuck in rclpy's destroy_node (the middleware's C++),
+    deaf to SIGINT and SIGTERM, until the graph killed it."""
+    env = dict(os.environ, ROS_DOMAIN_ID=str(ros_domain_id),
+               PYTHONPATH=os.pathsep.join([str(Path(__file__).parents[2] / "src" / "uav_landing_vision"), os.environ.get("PYTHONPATH", "")]))
+    done = subprocess.run([sys.executable, "-c", HANGS_IN_TEARDOWN], env=env, capture_output=True, text=True, timeout=50)
+    assert done.returncode == 1
+    assert "Timeout" in done.stderr and "in stuck_in_teardown" in done.stderr, done.stderr
 
 
 def test_diagnostics_report_counters_and_the_last_error(ros):

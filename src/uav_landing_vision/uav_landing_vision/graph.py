@@ -3,11 +3,11 @@
 Each node of :data:`GRAPH_NODES` runs as
 ``python -m uav_landing_vision.nodes.<node> --ros-args --params-file <config>/<node>.yaml``
 (the same parameter files as ``launch/landing_vision.launch.py``). Their output is streamed
-with a ``[node]`` prefix. The graph stops, every node with SIGINT (then SIGTERM, then SIGKILL
-after ``--stop-timeout``; before SIGKILL, SIGUSR1 has a hung node print its threads' stacks), on
-Ctrl-C or SIGTERM, ``--drain`` seconds after ``bag_player`` has played the bag (for the last
-frame's messages downstream), or when a node exits on its own; the exit code is 0 only if every
-node ended cleanly.
+with a ``[node]`` prefix. The graph stops, the nodes one at a time, the last started first, each
+with SIGINT (then SIGTERM, then SIGKILL after ``--stop-timeout``; before SIGKILL, SIGUSR1 has a
+hung node print its threads' stacks), on Ctrl-C or SIGTERM, ``--drain`` seconds after
+``bag_player`` has played the bag (for the last frame's messages downstream), or when a node exits
+on its own; the exit code is 0 only if every node ended cleanly.
 With ``--bag`` every node runs on the bag's time (``use_sim_time``, from the player's ``/clock``),
 as with ``ros2 bag play --clock``: the GCS bridge would otherwise find every replayed pose stale.
 A bag that cannot be opened is refused before any node starts. ``--remap FROM:=TO`` remaps a
@@ -292,26 +292,27 @@ class Graph:
         return []
 
     def _stop_all(self) -> None:
-        running = [p for p in self.procs.values() if p.poll() is None]
+        """Stop the nodes one at a time, the last started first: all at once, a node's DDS teardown
+        runs into the others' (Fast DDS hung in one, seen in loaded e2e runs)."""
+        for name in reversed(list(self.procs)):
+            self._stop(name, self.procs[name])
+
+    def _stop(self, name: str, proc: subprocess.Popen) -> None:
+        """SIGINT, then SIGTERM, then (after SIGUSR1 for its stacks) SIGKILL, ``stop_timeout`` apart."""
         for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
-            if sig != signal.SIGINT and running:
-                late = ", ".join(name for name, p in self.procs.items() if p in running)
-                dump = " after SIGUSR1 (its threads' stacks)" if sig == signal.SIGKILL else ""
-                self._say(f"{late} still running {self.stop_timeout:g} s after the last signal; sending {sig.name}{dump}")
-                if dump:
-                    for proc in running:
-                        proc.send_signal(signal.SIGUSR1)
-                    time.sleep(STACK_DUMP_S)
-            for proc in running:
-                proc.send_signal(sig)
-            deadline = time.monotonic() + self.stop_timeout
-            while running and time.monotonic() < deadline:
-                running = [p for p in running if p.poll() is None]
-                time.sleep(_POLL_S)
-            if not running:
+            if proc.poll() is not None:
                 return
-        for proc in running:
-            proc.wait()
+            if sig != signal.SIGINT:
+                dump = " after SIGUSR1 (its threads' stacks)" if sig == signal.SIGKILL else ""
+                self._say(f"{name} still running {self.stop_timeout:g} s after the last signal; sending {sig.name}{dump}")
+                if dump:
+                    proc.send_signal(signal.SIGUSR1)
+                    time.sleep(STACK_DUMP_S)
+            proc.send_signal(sig)
+            try:
+                proc.wait(timeout=self.stop_timeout)
+            except subprocess.TimeoutExpired:
+                continue
 
     def _on_signal(self, signum, frame) -> None:
         self.stopped_by_signal = signum

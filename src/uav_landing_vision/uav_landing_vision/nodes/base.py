@@ -25,6 +25,7 @@ from ..config import ConfigError, from_mapping
 from .qos import RELIABLE_QOS
 
 DIAGNOSTICS_PERIOD_S = 1.0
+TEARDOWN_LIMIT_S = 5.0  # a node's teardown taking longer has hung: the process ends (run_node)
 DROP_LOG_PERIOD_S = 1.0  # a kind of drop is logged at most this often
 # Parameters every rclpy node declares itself; they are not part of a node's configuration.
 ROS_PARAMETERS = frozenset({"use_sim_time", "start_type_description_service"})
@@ -160,9 +161,12 @@ def run_node(factory, args=None, run=None) -> int:
     a :class:`ConfigError` while building the node are start-up failures: logged, exit code 2.
     Ctrl-C / SIGTERM end the node cleanly with exit code 0. SIGUSR1 prints the stack of every
     thread to stderr (``uav-landing graph`` sends it to a node that ignored SIGINT and SIGTERM,
-    before SIGKILL), so a node that hangs says where.
+    before SIGKILL), so a node that hangs says where. A teardown (executor, node, rclpy) that has
+    not ended after :data:`TEARDOWN_LIMIT_S` prints every stack and ends the process, exit code 1:
+    it hung in the middleware's C++ (Fast DDS's participant teardown, seen in loaded e2e runs),
+    where neither SIGINT nor SIGTERM reaches it.
     """
-    faulthandler.register(signal.SIGUSR1, all_threads=True)
+    faulthandler.register(signal.SIGUSR1, file=sys.__stderr__, all_threads=True)
     try:
         rclpy.init(args=args)
     except RuntimeError as exc:  # rclpy's RCLError and UnknownROSArgsError
@@ -183,10 +187,12 @@ def run_node(factory, args=None, run=None) -> int:
             raise
         return 0
     finally:
+        faulthandler.dump_traceback_later(TEARDOWN_LIMIT_S, exit=True, file=sys.__stderr__)  # a C thread: needs no GIL
         executor.shutdown()
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+        faulthandler.cancel_dump_traceback_later()
 
 
 def stopped_by_shutdown(exc: BaseException, context=None) -> bool:
