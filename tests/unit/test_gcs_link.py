@@ -196,6 +196,37 @@ def test_udpin_answers_the_gcs_once_it_has_sent_a_packet():
     assert stats.dropped > 0 and "no GCS" in stats.last_error and stats.restored == 1 and stats.up
 
 
+def test_udpin_stops_answering_a_gcs_that_has_gone_silent(monkeypatch):
+    """It answered every address it ever heard from, for ever: a GCS gone, or restarted on another
+    port, went on receiving guidance, and the link reported itself up. A GCS heartbeats every second."""
+    monkeypatch.setattr(link_module, "PEER_SILENCE_S", 0.5)
+    port = free_port(socket.SOCK_DGRAM)
+    bridge = make_bridge(f"udpin:127.0.0.1:{port}")
+    gcs = open_link(f"udpout:127.0.0.1:{port}", 255, 190)
+    got = []
+
+    def pump():
+        while (m := gcs.recv_match(blocking=False)) is not None:
+            got.append(m)
+
+    flight = Flight(bridge, pump)
+    gcs.mav.heartbeat_send(mav2.MAV_TYPE_GCS, mav2.MAV_AUTOPILOT_INVALID, 0, 0, mav2.MAV_STATE_ACTIVE)
+    flight.run(3.0, until=lambda: "ODOMETRY" in {m.get_type() for m in got})
+    assert bridge.link_stats.up
+    flight.run(1.0)  # silent for twice PEER_SILENCE_S
+    assert not bridge.link_stats.up and "no GCS heard within 0.5 s" in bridge.link_stats.last_error
+    got.clear()
+    flight.run(0.5)
+    assert not got
+    gcs.mav.heartbeat_send(mav2.MAV_TYPE_GCS, mav2.MAV_AUTOPILOT_INVALID, 0, 0, mav2.MAV_STATE_ACTIVE)
+    flight.run(3.0, until=lambda: {"HEARTBEAT", "STATUSTEXT", "ODOMETRY"} <= {m.get_type() for m in got})
+    bridge.close()
+    gcs.close()
+    flight.assert_landing_went_on()
+    assert_announced_once(got)  # heard again: the heartbeat and the stage first
+    assert bridge.link_stats.restored == 1
+
+
 @pytest.mark.parametrize("reset", [False, True], ids=["closed", "reset"])
 def test_a_tcp_gcs_that_goes_away_and_comes_back(capfd, reset):
     """pymavlink printed a line per frame once the GCS had gone (stdout, not the node's log) and

@@ -3,8 +3,9 @@
 ``mavlink.connection`` is one of:
 
 - ``udpout:HOST:PORT``: datagrams to the GCS;
-- ``udpin:HOST:PORT``: listen there and answer every address a datagram came from, so nothing
-  can be sent before the GCS's first packet;
+- ``udpin:HOST:PORT``: listen there and answer every address a datagram came from within the
+  last ``PEER_SILENCE_S`` (a GCS sends its heartbeat every second), so nothing can be sent
+  before the GCS's first packet, and a GCS gone or moved to another port is no longer answered;
 - ``tcp:HOST:PORT``: connect to the GCS;
 - ``/PATH[,BAUD]``: a serial device (a telemetry radio), 8N1 without flow control, 115200 baud
   unless given.
@@ -32,6 +33,7 @@ from dataclasses import dataclass
 REOPEN_PERIOD_S = 1.0
 CONNECT_TIMEOUT_S = 2.0
 START_WAIT_S = 1.0  # start-up waits this long for the first TCP connection
+PEER_SILENCE_S = 5.0  # udpin answers an address no longer once it has been silent this long
 READS_PER_POLL = 64
 READ_SIZE = 65536
 DEFAULT_BAUD = "115200"
@@ -134,7 +136,7 @@ class Link(ABC):
 
 
 class DatagramLink(Link):
-    """``udpout`` (one peer, the GCS) or ``udpin`` (every address a datagram came from)."""
+    """``udpout`` (one peer, the GCS) or ``udpin`` (every address heard from lately)."""
 
     def __init__(self, address, listen: bool):
         super().__init__()
@@ -144,7 +146,7 @@ class DatagramLink(Link):
         if listen:
             self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
             self._sock.bind(address)
-        self._peers = set() if listen else {address}
+        self._peers = {} if listen else {address: None}  # address -> monotonic time last heard (udpin)
 
     @property
     def up(self) -> bool:
@@ -152,7 +154,7 @@ class DatagramLink(Link):
 
     def _send(self, frame: bytes) -> bool:
         if not self._peers:
-            self._last_error = "no GCS has sent a datagram yet: nowhere to send"
+            self._last_error = f"no GCS heard within {PEER_SILENCE_S:g} s: nowhere to send"  # udpin only
             return False
         for peer in self._peers:
             self._sock.sendto(frame, peer)
@@ -161,12 +163,14 @@ class DatagramLink(Link):
     def _poll(self) -> None:
         if not self._listen:
             return
+        now = time.monotonic()
         for _ in range(READS_PER_POLL):
             try:
                 _, peer = self._sock.recvfrom(READ_SIZE)
             except BlockingIOError:
-                return
-            self._peers.add(peer)
+                break
+            self._peers[peer] = now
+        self._peers = {peer: heard for peer, heard in self._peers.items() if now - heard < PEER_SILENCE_S}
 
     def close(self) -> None:
         self._sock.close()
