@@ -71,7 +71,7 @@ class ConeConfig:
 
 @dataclass(frozen=True)
 class MavlinkConfig:
-    connection: str  # pymavlink connection string (udpout:, udpin:, tcp:, serial device)
+    connection: str  # udpout:HOST:PORT, udpin:HOST:PORT, tcp:HOST:PORT or a serial device (gcs.link)
     system_id: int
     component_id: int
     messages: tuple[MessageName, ...]
