@@ -171,27 +171,50 @@ class TcpGcs:
         self.gone = True
 
 
-def test_udpin_answers_the_gcs_once_it_has_sent_a_packet():
-    """``udpin`` can only answer addresses it heard from: the bridge must read its socket. It
-    never did, so it never sent anything, whatever the GCS sent it."""
-    port = free_port(socket.SOCK_DGRAM)
-    bridge = make_bridge(f"udpin:127.0.0.1:{port}")
-    gcs = open_link(f"udpout:127.0.0.1:{port}", 255, 190)
-    got = []
+class UdpGcs:
+    """A GCS sending datagrams to the bridge's udpin port and collecting what comes back."""
 
-    def pump():
-        while (m := gcs.recv_match(blocking=False)) is not None:
-            got.append(m)
+    def __init__(self, port):
+        self.link = open_link(f"udpout:127.0.0.1:{port}", 255, 190)
+        self.got = []
 
-    flight = Flight(bridge, pump)
-    flight.run(0.5)
-    assert not got
-    gcs.mav.heartbeat_send(mav2.MAV_TYPE_GCS, mav2.MAV_AUTOPILOT_INVALID, 0, 0, mav2.MAV_STATE_ACTIVE)
-    flight.run(3.0, until=lambda: {"HEARTBEAT", "STATUSTEXT", "ODOMETRY"} <= {m.get_type() for m in got})
+    def heartbeat(self):
+        self.link.mav.heartbeat_send(mav2.MAV_TYPE_GCS, mav2.MAV_AUTOPILOT_INVALID, 0, 0, mav2.MAV_STATE_ACTIVE)
+
+    def pump(self):
+        while (m := self.link.recv_match(blocking=False)) is not None:
+            self.got.append(m)
+
+    def types(self) -> set:
+        return {m.get_type() for m in self.got}
+
+    def close(self):
+        self.link.close()
+
+
+def heard_then_closed(flight, bridge, gcs):
+    """The GCS heartbeats; the landing goes on until it has the heartbeat, the stage (once) and a pose."""
+    gcs.heartbeat()
+    flight.run(3.0, until=lambda: {"HEARTBEAT", "STATUSTEXT", "ODOMETRY"} <= gcs.types())
     bridge.close()
     gcs.close()
     flight.assert_landing_went_on()
-    assert_announced_once(got)  # the stage, announced once the GCS is heard
+    assert_announced_once(gcs.got)
+
+
+def udpin_bridge_and_gcs():
+    port = free_port(socket.SOCK_DGRAM)
+    return make_bridge(f"udpin:127.0.0.1:{port}"), UdpGcs(port)
+
+
+def test_udpin_answers_the_gcs_once_it_has_sent_a_packet():
+    """``udpin`` can only answer addresses it heard from: the bridge must read its socket. It
+    never did, so it never sent anything, whatever the GCS sent it."""
+    bridge, gcs = udpin_bridge_and_gcs()
+    flight = Flight(bridge, gcs.pump)
+    flight.run(0.5)
+    assert not gcs.got
+    heard_then_closed(flight, bridge, gcs)  # the stage, announced once the GCS is heard
     stats = bridge.link_stats
     assert stats.dropped > 0 and "no GCS" in stats.last_error and stats.restored == 1 and stats.up
 
@@ -200,30 +223,17 @@ def test_udpin_stops_answering_a_gcs_that_has_gone_silent(monkeypatch):
     """It answered every address it ever heard from, for ever: a GCS gone, or restarted on another
     port, went on receiving guidance, and the link reported itself up. A GCS heartbeats every second."""
     monkeypatch.setattr(link_module, "PEER_SILENCE_S", 0.5)
-    port = free_port(socket.SOCK_DGRAM)
-    bridge = make_bridge(f"udpin:127.0.0.1:{port}")
-    gcs = open_link(f"udpout:127.0.0.1:{port}", 255, 190)
-    got = []
-
-    def pump():
-        while (m := gcs.recv_match(blocking=False)) is not None:
-            got.append(m)
-
-    flight = Flight(bridge, pump)
-    gcs.mav.heartbeat_send(mav2.MAV_TYPE_GCS, mav2.MAV_AUTOPILOT_INVALID, 0, 0, mav2.MAV_STATE_ACTIVE)
-    flight.run(3.0, until=lambda: "ODOMETRY" in {m.get_type() for m in got})
+    bridge, gcs = udpin_bridge_and_gcs()
+    flight = Flight(bridge, gcs.pump)
+    gcs.heartbeat()
+    flight.run(3.0, until=lambda: "ODOMETRY" in gcs.types())
     assert bridge.link_stats.up
     flight.run(1.0)  # silent for twice PEER_SILENCE_S
     assert not bridge.link_stats.up and "no GCS heard within 0.5 s" in bridge.link_stats.last_error
-    got.clear()
+    gcs.got.clear()
     flight.run(0.5)
-    assert not got
-    gcs.mav.heartbeat_send(mav2.MAV_TYPE_GCS, mav2.MAV_AUTOPILOT_INVALID, 0, 0, mav2.MAV_STATE_ACTIVE)
-    flight.run(3.0, until=lambda: {"HEARTBEAT", "STATUSTEXT", "ODOMETRY"} <= {m.get_type() for m in got})
-    bridge.close()
-    gcs.close()
-    flight.assert_landing_went_on()
-    assert_announced_once(got)  # heard again: the heartbeat and the stage first
+    assert not gcs.got
+    heard_then_closed(flight, bridge, gcs)  # heard again: the heartbeat and the stage first
     assert bridge.link_stats.restored == 1
 
 
