@@ -27,9 +27,9 @@ Before playing, the player waits (up to ``ready_timeout_s``) until every topic o
 ``ready_topics`` has a subscriber and a publisher and, in paced mode, until ``pace_topic``
 has a subscriber and ``ack_topic`` a publisher; a paced player that is not ready by then
 exits with code 1. ``clock: true`` publishes the bag time on ``/clock`` before each message
-(the latest so far: it never goes back) and again at least every ``SPIN_S`` while a paced frame waits for
-its acknowledgement: nodes take ``/clock`` best effort (rclpy's time source), and one lost
-message left a node's clock behind the frames it was given.
+(the latest so far: it never goes back) and again at least every ``SPIN_S`` while a paced frame
+waits for its acknowledgement: nodes take ``/clock`` best effort (rclpy's time source), and one
+lost message left a node's clock behind the frames it was given.
 A missing or unreadable bag fails start-up (exit code 2).
 """
 

@@ -12,10 +12,10 @@ distinct calibration. Parameters (``config/undistort.yaml``):
 - ``camera_qos``: ``reliable`` (the graph's image QoS, ``qos.IMAGE_QOS``) or ``sensor_data``
   (best effort, to accept a camera driver that publishes best effort; frames may be lost).
 
-Images that come before the first usable calibration are held (the newest
-:data:`HELD_IMAGES`) and rectified once it comes: a camera_info may arrive a moment after the
-image it was sent with. Dropped (logged, counted on ``/diagnostics``): held images beyond
-those, images whose size differs from the calibration's, unsupported encodings, malformed data, and unusable
+Images that come before the first usable calibration are held (the newest :data:`HELD_IMAGES`)
+and rectified once it comes: a camera_info may arrive a moment after the image it was sent with.
+Dropped (logged, counted on ``/diagnostics``): held images beyond those, images whose size
+differs from the calibration's, unsupported encodings, malformed data, and unusable
 ``camera_info`` messages (the previous calibration stays in use).
 """
 
