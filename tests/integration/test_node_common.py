@@ -17,7 +17,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import ReliabilityPolicy
+from rclpy.qos import HistoryPolicy, ReliabilityPolicy
 from rclpy.serialization import serialize_message
 from rosbags.rosbag2 import CompressionFormat, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
@@ -28,7 +28,7 @@ from uav_landing_vision.config import ConfigError
 from uav_landing_vision.nodes import base
 from uav_landing_vision.nodes.base import LandingNode, run_node
 from uav_landing_vision.nodes.image import ImageError, image_to_numpy, numpy_to_image
-from uav_landing_vision.nodes.qos import IMAGE_QOS, RELIABLE_QOS, SENSOR_QOS, qos_for_type
+from uav_landing_vision.nodes.qos import IMAGE_QOS, KEEP_ALL_QOS, RELIABLE_QOS, SENSOR_QOS, qos_for_type
 from uav_landing_vision.nodes.sync import RepeatedStampError, StampCache
 
 SPIN_TIMEOUT_S = 30.0  # generous: discovery takes seconds and other jobs share the 2 cores
@@ -77,6 +77,13 @@ def ros(ros_domain_id):
     harness = RosHarness(ros_domain_id)
     yield harness
     harness.close()
+
+
+def participant_of(node, topic: str) -> bytes:
+    """The DDS participant (GUID prefix: the first 12 bytes of the endpoint's GID) of the only
+    publisher of ``topic`` that ``node`` sees."""
+    (info,) = node.get_publishers_info_by_topic(topic)
+    return bytes(info.endpoint_gid[:12])
 
 
 def rgb_frame(camera: CameraModel, seed: int = 0) -> np.ndarray:
@@ -181,6 +188,7 @@ def test_qos_reliable_in_the_graph_best_effort_only_for_camera_drivers():
     for name in ("uav_landing_msgs/msg/PoseHypotheses", "geometry_msgs/msg/PoseWithCovarianceStamped", "geometry_msgs/msg/PoseStamped"):
         profile = qos_for_type(name)
         assert profile is RELIABLE_QOS and profile.reliability == ReliabilityPolicy.RELIABLE and profile.depth >= 10
+    assert KEEP_ALL_QOS.reliability == ReliabilityPolicy.RELIABLE and KEEP_ALL_QOS.history == HistoryPolicy.KEEP_ALL
 
 
 # --- stamp matching ------------------------------------------------------------------------

@@ -20,7 +20,7 @@ from uav_landing_vision.nodes import evaluator as evaluator_node
 from uav_landing_vision.nodes.base import stamp_ns
 from uav_landing_vision.nodes.evaluator import EvaluatorNode, run_until_done
 from uav_landing_vision.nodes.poses import numpy_to_pose
-from uav_landing_vision.nodes.qos import RELIABLE_QOS
+from uav_landing_vision.nodes.qos import KEEP_ALL_QOS, RELIABLE_QOS
 from uav_landing_vision.sim import read_pose_csv
 
 REPO = Path(__file__).parents[2]
@@ -160,6 +160,27 @@ def test_sigint_writes_the_report_and_exits_cleanly(ros, ros_domain_id, tmp_path
     summary = json.loads((tmp_path / "report" / "summary.json").read_text())
     assert summary["frames"] == 3 and summary["variants"]["tracker"]["lost_frames_pct"] == 0.0, output
     assert "3 ground-truth frames, 3 with a pose" in output
+
+
+def test_messages_that_come_while_the_node_is_busy_are_all_scored(ros, tmp_path):
+    """DDS queues what arrives while the node does not spin (busy writing, or starved of CPU on a
+    loaded machine; a timed replay at full speed sends a burst). The subscriptions kept the last
+    10, so a longer stall lost ground truths and poses, i.e. frames scored as lost or not at all."""
+    frames = 40
+    rig = Rig(ros, tmp_path, Parameter("frames", value=frames), Parameter("settle_s", value=0.2),
+              Parameter("idle_timeout_s", value=5.0))  # ends the run should ground truths be missing
+    truth_pub = ros.probe.create_publisher(PoseStamped, "uav/ground_truth", KEEP_ALL_QOS)
+    pose_pub = ros.probe.create_publisher(PoseWithCovarianceStamped, "uav/pose", KEEP_ALL_QOS)
+    assert ros.spin_until(lambda: truth_pub.get_subscription_count() and pose_pub.get_subscription_count())
+    for k in range(frames):  # nobody spins: all of it waits in the node's subscriptions
+        truth_pub.publish(truth_msg(k))
+        pose_pub.publish(pose_msg(k))
+    for publisher in (truth_pub, pose_pub):
+        assert publisher.wait_for_all_acked(Duration(seconds=10))
+    assert run_until_done(rig.node, ros.executor) == 0
+    assert (rig.node.counters["truth_received"], rig.node.counters["received"]) == (frames, frames)
+    summary = json.loads((tmp_path / "report" / "summary.json").read_text())
+    assert summary["frames"] == frames and summary["variants"]["C4N2"]["lost_frames_pct"] == 0.0
 
 
 def test_poses_without_ground_truth_are_bounded(ros, tmp_path):

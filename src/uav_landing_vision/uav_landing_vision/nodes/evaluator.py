@@ -1,10 +1,10 @@
 """``evaluator``: scores the tracked poses of a replayed sequence against its ground truth (§6.7).
 
 Subscribes ``uav/pose`` (PoseWithCovarianceStamped) and ``uav/ground_truth`` (PoseStamped),
-both reliable, and pairs them by exact ``header.stamp`` (``evaluation.align``); a ground-truth
-frame without a pose counts as lost. Of the poses without ground truth only the newest
-:data:`POSES_WITHOUT_TRUTH` are kept (a live graph, which has none, runs for hours). The report
-is written to ``out_dir`` when the node ends:
+both reliable and keep-all (a stalled process loses none), and pairs them by exact
+``header.stamp`` (``evaluation.align``); a ground-truth frame without a pose counts as lost.
+Of the poses without ground truth only the newest :data:`POSES_WITHOUT_TRUTH` are kept (a live
+graph, which has none, runs for hours). The report is written to ``out_dir`` when the node ends:
 
 - on shutdown (Ctrl-C, SIGTERM; e.g. when ``uav-landing graph`` stops after the bag), or
 - when done: ``frames`` > 0 ground-truth frames have been received and then ``settle_s``
@@ -46,7 +46,7 @@ from ..evaluation.consistency import coverage_by_depth, format_coverage
 from ..sim import Poses, write_pose_csv
 from .base import SHUTDOWN_ERRORS, LandingNode, run_node, stamp_ns, stopped_by_shutdown
 from .poses import pose_to_numpy
-from .qos import RELIABLE_QOS
+from .qos import KEEP_ALL_QOS
 
 SPIN_S = 0.1
 # Poses kept while their ground truth has not come (the newest): a live graph runs this node too, and
@@ -85,8 +85,8 @@ class EvaluatorNode(LandingNode):
         self._without_truth: dict[int, None] = {}  # stamps of the poses whose ground truth has not come, oldest first
         self._last_truth = None  # monotonic time of the last ground truth
         self.report_dir: Path | None = None
-        self.create_subscription(PoseWithCovarianceStamped, "uav/pose", self._on_pose, RELIABLE_QOS)
-        self.create_subscription(PoseStamped, "uav/ground_truth", self._on_truth, RELIABLE_QOS)
+        self.create_subscription(PoseWithCovarianceStamped, "uav/pose", self._on_pose, KEEP_ALL_QOS)
+        self.create_subscription(PoseStamped, "uav/ground_truth", self._on_truth, KEEP_ALL_QOS)
 
     def _store(self, into: dict, what: str, stamp: int, pose) -> bool:
         try:
