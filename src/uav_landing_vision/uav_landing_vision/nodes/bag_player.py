@@ -3,7 +3,9 @@
 Stands in for ``ros2 bag play`` where rosbag2 is not installed; reads with ``rosbags``. Every
 message is checked by deserialising it with the installed message type, then its recorded
 bytes are published unchanged. Images and camera_info go out with the graph's image QoS
-(reliable, keep last 5), other topics reliable, keep last 10 (``qos.qos_for_type``). Messages
+(reliable, keep last 5), other topics reliable, keep last 10 (``qos.qos_for_type``); images
+from a DDS participant of their own (``participant.ImageParticipant``: sharing one with them,
+ground truths were lost). Messages
 go out in bag time order (the recorder's receive times; ``clock`` follows it), except that a
 frame (``pace_topic`` message) goes after the messages recorded with it: those of its bag time
 and, before the next frame and up to ``FRAME_LAG_NS`` later, those of its header stamp (a
@@ -50,6 +52,7 @@ from rosgraph_msgs.msg import Clock
 from ..config import ConfigError
 from ..sim.bag import BagError, bag_messages, open_bag
 from .base import LandingNode, run_node, stamp_ns
+from .participant import IMAGE_TYPES, ImageParticipant
 from .qos import RELIABLE_QOS, qos_for_type
 
 SPIN_S = 0.1  # while a paced frame waits: how long each spin may wait, and how often /clock is published again
@@ -92,14 +95,26 @@ class BagPlayer(LandingNode):
         self._ready_topics = [_resolved(self, "ready_topics", topic) for topic in cfg.ready_topics]
         self._reader = _open_bag(cfg.bag)
         self._players = {}
+        self._images = None  # the ImageParticipant of the image topics, made with the first of them
         self._played = set()  # ids of the connections whose messages are played
+        self._clock_ns = 0  # the bag time last published on /clock
+        self._pending = None  # stamp (ns) of the paced frame awaiting its acknowledgement
+        self._acked = set()
+        try:
+            self._set_up(cfg)
+        except ConfigError:
+            self._release()
+            raise
+        topics = {c.topic: c.msgcount for c in self._reader.connections if c.topic in self._players}
+        self.get_logger().info(f"bag {cfg.bag}: {self._reader.message_count} messages, topics {topics}, mode {cfg.mode}")
+
+    def _set_up(self, cfg: BagPlayerConfig) -> None:
+        """The publishers, the clock and (paced) the acknowledgement; :class:`ConfigError` if the
+        bag cannot be paced as configured."""
         for conn in self._reader.connections:
             self._add_publisher(conn)
         self._pace = self._bag_topic(_resolved(self, "pace_topic", cfg.pace_topic))  # None: the bag has no frames
         self._clock_pub = self.create_publisher(Clock, "/clock", RELIABLE_QOS) if cfg.clock else None
-        self._clock_ns = 0  # the bag time last published on /clock
-        self._pending = None  # stamp (ns) of the paced frame awaiting its acknowledgement
-        self._acked = set()
         if cfg.mode == "paced":
             pace = self._players.get(self._pace)
             if pace is None:
@@ -113,8 +128,6 @@ class BagPlayer(LandingNode):
                 raise ConfigError(f"ack_type: '{cfg.ack_type}' is not an installed message type with a header")
             ack_topic = _resolved(self, "ack_topic", cfg.ack_topic)
             self._ack_sub = self.create_subscription(ack_cls, ack_topic, self._on_ack, qos_for_type(cfg.ack_type))
-        topics = {c.topic: c.msgcount for c in self._reader.connections if c.topic in self._players}
-        self.get_logger().info(f"bag {cfg.bag}: {self._reader.message_count} messages, topics {topics}, mode {cfg.mode}")
 
     def _bag_topic(self, name: str) -> str | None:
         """The bag topic published as ``name`` (a resolved topic name: remapping applies), if any."""
@@ -130,7 +143,10 @@ class BagPlayer(LandingNode):
             self.get_logger().warn(f"{topic}: recorded with several types; {type_name} not played")
             return
         if topic not in self._players:
-            self._players[topic] = self.create_publisher(cls, topic, qos_for_type(type_name))
+            owner = self
+            if type_name in IMAGE_TYPES:
+                owner = self._images = self._images or ImageParticipant(self)
+            self._players[topic] = owner.create_publisher(cls, topic, qos_for_type(type_name))
         self._played.add(conn.id)
 
     def _on_ack(self, msg) -> None:
@@ -267,9 +283,16 @@ class BagPlayer(LandingNode):
         self._pending = None
         self._acked.clear()
 
-    def destroy_node(self):
+    def _release(self) -> None:
+        """Close the bag and end the images' participant."""
         if self._reader.is_open:
             self._reader.close()
+        if self._images is not None:
+            self._images.destroy()
+            self._images = None
+
+    def destroy_node(self):
+        self._release()
         super().destroy_node()
 
 
