@@ -4,8 +4,8 @@ Stands in for ``ros2 bag play`` where rosbag2 is not installed; reads with ``ros
 message is checked by deserialising it with the installed message type, then its recorded
 bytes are published unchanged. Images and camera_info go out with the graph's image QoS
 (reliable, keep last 5), other topics reliable, keep last 10 (``qos.qos_for_type``); images
-from a DDS participant of their own (``participant.ImageParticipant``: sharing one with them,
-ground truths were lost). Messages
+from a DDS participant of their own (``LandingNode.create_image_publisher``: sharing one with
+them, ground truths were lost). Messages
 go out in bag time order (the recorder's receive times; ``clock`` follows it), except that a
 frame (``pace_topic`` message) goes after the messages recorded with it: those of its bag time
 and, before the next frame and up to ``FRAME_LAG_NS`` later, those of its header stamp (a
@@ -52,7 +52,7 @@ from rosgraph_msgs.msg import Clock
 from ..config import ConfigError
 from ..sim.bag import BagError, bag_messages, open_bag
 from .base import LandingNode, run_node, stamp_ns
-from .participant import IMAGE_TYPES, ImageParticipant
+from .participant import IMAGE_TYPES
 from .qos import RELIABLE_QOS, qos_for_type
 
 SPIN_S = 0.1  # while a paced frame waits: how long each spin may wait, and how often /clock is published again
@@ -95,7 +95,6 @@ class BagPlayer(LandingNode):
         self._ready_topics = [_resolved(self, "ready_topics", topic) for topic in cfg.ready_topics]
         self._reader = _open_bag(cfg.bag)
         self._players = {}
-        self._images = None  # the ImageParticipant of the image topics, made with the first of them
         self._played = set()  # ids of the connections whose messages are played
         self._clock_ns = 0  # the bag time last published on /clock
         self._pending = None  # stamp (ns) of the paced frame awaiting its acknowledgement
@@ -103,7 +102,7 @@ class BagPlayer(LandingNode):
         try:
             self._set_up(cfg)
         except ConfigError:
-            self._release()
+            self.destroy_node()  # the bag, the images' participant, the node
             raise
         topics = {c.topic: c.msgcount for c in self._reader.connections if c.topic in self._players}
         self.get_logger().info(f"bag {cfg.bag}: {self._reader.message_count} messages, topics {topics}, mode {cfg.mode}")
@@ -143,10 +142,8 @@ class BagPlayer(LandingNode):
             self.get_logger().warn(f"{topic}: recorded with several types; {type_name} not played")
             return
         if topic not in self._players:
-            owner = self
-            if type_name in IMAGE_TYPES:
-                owner = self._images = self._images or ImageParticipant(self)
-            self._players[topic] = owner.create_publisher(cls, topic, qos_for_type(type_name))
+            create = self.create_image_publisher if type_name in IMAGE_TYPES else self.create_publisher
+            self._players[topic] = create(cls, topic, qos_for_type(type_name))
         self._played.add(conn.id)
 
     def _on_ack(self, msg) -> None:
@@ -283,16 +280,9 @@ class BagPlayer(LandingNode):
         self._pending = None
         self._acked.clear()
 
-    def _release(self) -> None:
-        """Close the bag and end the images' participant."""
+    def destroy_node(self):
         if self._reader.is_open:
             self._reader.close()
-        if self._images is not None:
-            self._images.destroy()
-            self._images = None
-
-    def destroy_node(self):
-        self._release()
         super().destroy_node()
 
 

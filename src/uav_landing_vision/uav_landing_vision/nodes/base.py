@@ -22,6 +22,7 @@ from rclpy.node import Node
 
 from ..camera import CameraInfoError
 from ..config import ConfigError, from_mapping
+from .participant import ImageParticipant
 from .qos import RELIABLE_QOS
 
 DIAGNOSTICS_PERIOD_S = 1.0
@@ -48,8 +49,22 @@ class LandingNode(Node):
         self._dropped_at_last_report = 0
         self._drop_logged: dict[str, float] = {}  # kind of drop -> monotonic time it was last logged
         self._diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", RELIABLE_QOS)
+        self._image_participant = None  # made with the first image publisher
         # Steady time: diagnostics keep flowing when use_sim_time is set and /clock is paused.
         self.create_timer(DIAGNOSTICS_PERIOD_S, self.publish_diagnostics, clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    def create_image_publisher(self, msg_type, topic: str, qos):
+        """A publisher of images from the node's second DDS participant (``participant.py``: sent
+        from one participant, images and small messages lost some of the small ones)."""
+        if self._image_participant is None:
+            self._image_participant = ImageParticipant(self)
+        return self._image_participant.create_publisher(msg_type, topic, qos)
+
+    def destroy_node(self):
+        if self._image_participant is not None:
+            self._image_participant.destroy()
+            self._image_participant = None
+        super().destroy_node()
 
     def _declare_overrides(self) -> None:
         """Declare every parameter given (file or ``-p``). rcl hands an empty list (``[]``) over

@@ -6,7 +6,7 @@ player's 2.7 MB frames and small ground-truth poses sent from one participant, p
 373 frames lost 1–2 truths in 7 of 9 runs; with the frames from a participant of their own, or
 with the UDP transport alone, none in any run (README, "Frames leave from a DDS participant of
 their own"). So a node that publishes images as well as small messages that must all arrive
-sends the images through :class:`ImageParticipant`.
+sends the images through :class:`ImageParticipant` (``LandingNode.create_image_publisher``).
 """
 
 import rclpy

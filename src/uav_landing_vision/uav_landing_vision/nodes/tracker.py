@@ -9,8 +9,7 @@ calibration is used) and ``uav/pose_hypotheses``. Publishes, with the image's he
 - ``uav/tracker_status`` (TrackerStatus: state, best likelihood, effective particle number,
   milliseconds per stage) for every tracked frame — the acknowledgement ``bag_player`` paces on;
 - ``uav/overlay`` (rgb8) with ``node.overlay``: the frame with the estimate's silhouette outline,
-  from a DDS participant of its own (``participant.ImageParticipant``: sent from one
-  participant, images and small messages lost some of the small ones).
+  from a DDS participant of its own (``LandingNode.create_image_publisher``).
 
 Matching: an image and its hypotheses are paired by exact ``header.stamp`` (either order,
 cache of ``node.cache_size`` stamps). An image waits at most ``node.hypotheses_timeout_s``
@@ -57,7 +56,6 @@ from ..tracking.upf import MAX_PREDICTION_STEPS, Tracker, TrackerConfig, gap_ste
 from .base import LandingNode, run_node, stamp_ns
 from .calibration import Calibration
 from .image import ImageError, image_to_rgb, numpy_to_image
-from .participant import ImageParticipant
 from .poses import numpy_to_pose, pose_to_numpy
 from .qos import IMAGE_QOS, RELIABLE_QOS
 from .sync import RESTART_BEHIND_NS, RepeatedStampError, StampCache
@@ -103,17 +101,11 @@ class TrackerNode(LandingNode):
         self._pose_pub = self.create_publisher(PoseWithCovarianceStamped, "uav/pose", RELIABLE_QOS)
         self._particles_pub = self.create_publisher(PoseArray, "uav/particles", RELIABLE_QOS)
         self._status_pub = self.create_publisher(TrackerStatus, "uav/tracker_status", RELIABLE_QOS)
-        self._overlay_participant = ImageParticipant(self) if self.node_config.overlay else None
-        self._overlay_pub = self._overlay_participant and self._overlay_participant.create_publisher(Image, "uav/overlay", IMAGE_QOS)
+        self._overlay_pub = self.create_image_publisher(Image, "uav/overlay", IMAGE_QOS) if self.node_config.overlay else None
         self.create_subscription(CameraInfo, "camera/camera_info_rect", self._on_camera_info, IMAGE_QOS)
         self.create_subscription(Image, "camera/image_rect", self._on_image, IMAGE_QOS)
         self.create_subscription(PoseHypotheses, "uav/pose_hypotheses", self._on_hypotheses, RELIABLE_QOS)
         self.create_timer(DEADLINE_CHECK_S, self._on_deadline, clock=Clock(clock_type=ClockType.STEADY_TIME))
-
-    def destroy_node(self):
-        if self._overlay_participant is not None:
-            self._overlay_participant.destroy()
-        super().destroy_node()
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
         self.take_camera_info(self._calibration, msg, use=self._use_camera)
