@@ -14,6 +14,7 @@ _COMMAND_MODULES = [
     "uav_landing_vision.demo",
     "uav_landing_vision.bench",
     "uav_landing_vision.graph",
+    "uav_landing_vision.render.commands",
     "uav_landing_vision.boosting.commands",
     "uav_landing_vision.detection.commands",
     "uav_landing_vision.sim.commands",

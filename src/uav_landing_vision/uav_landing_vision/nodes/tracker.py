@@ -29,9 +29,10 @@ with the current track (e.g. one started from finite but absurd hypotheses) rest
 
 Each message carries M hypotheses; the tracker takes the first ``Tracker.hypotheses_needed()``
 (M at (re)initialisation and in C1, M − M0 otherwise). This node owns the process's only
-moderngl context (its ``GL_RENDERER`` is logged at start-up). Parameters: the ``tracker``
-section of ``config/tracker.yaml`` (``TrackerConfig``) and the node's own under ``node``
-(given with ``-p node.overlay:=true`` or a second parameter file).
+moderngl context (its ``GL_RENDERER`` is logged at start-up). It refuses to start when that
+context fails the renderer's self-test (``render.selftest``: silhouettes unlike the shipped
+reference's). Parameters: the ``tracker`` section of ``config/tracker.yaml`` (``TrackerConfig``)
+and the node's own under ``node`` (given with ``-p node.overlay:=true`` or a second parameter file).
 """
 
 import sys
@@ -52,6 +53,7 @@ from ..config import ConfigError
 from ..model import fixed_wing_mesh
 from ..render import Renderer
 from ..render.context import GLContextError, gl_context
+from ..render.selftest import RendererSelfTestError, check_renderer
 from ..tracking.upf import MAX_PREDICTION_STEPS, Tracker, TrackerConfig, gap_steps, render_batch
 from .base import LandingNode, run_node, stamp_ns
 from .calibration import Calibration
@@ -89,9 +91,11 @@ class TrackerNode(LandingNode):
         self.node_config = self.load_config(TrackerNodeConfig, group="node")
         try:
             ctx = gl_context()
-        except GLContextError as exc:
+            self_test = check_renderer()
+        except (GLContextError, RendererSelfTestError) as exc:
             raise ConfigError(f"OpenGL: {exc}") from exc
         self.get_logger().info(f"GL_RENDERER: {ctx.info['GL_RENDERER']}; tracker {self.config.name}, M={self.config.particles}")
+        self.get_logger().info(f"renderer self-test {self_test.summary}")
         self._mesh = fixed_wing_mesh("low")
         self._tracker = self._renderer = None
         self._calibration = Calibration(rectified=True)

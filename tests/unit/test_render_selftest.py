@@ -1,0 +1,109 @@
+"""The renderer's self-test: the shipped reference passes here, a shifted rasterisation and a
+damaged reference fail with a message that says so, and the per-tile limit is as documented."""
+
+import numpy as np
+import pytest
+
+from uav_landing_vision.cli import main as cli_main
+from uav_landing_vision.render import renderer as renderer_module
+from uav_landing_vision.render import selftest
+from uav_landing_vision.render.selftest import RendererSelfTestError, check_renderer, compare, load_reference
+
+
+@pytest.fixture(scope="module")
+def reference():
+    return load_reference()
+
+
+def shift_rasterisation(monkeypatch, tile_px: float) -> None:
+    """Make the renderer draw every silhouette ``tile_px`` tile pixels right of where its box says,
+    as a GL with another pixel-centre convention would."""
+    real = renderer_module.tile_boxes
+
+    def shifted(*args):
+        boxes, visible = real(*args)
+        step = tile_px * (boxes[:, 2] - boxes[:, 0]) / selftest.TILE
+        return boxes - np.stack([step, 0 * step, step, 0 * step], axis=1), visible
+
+    monkeypatch.setattr(renderer_module, "tile_boxes", shifted)
+
+
+def test_the_shipped_reference_passes_on_this_machine(reference):
+    result = check_renderer()
+    assert result.ok and result.failing_tiles == 0
+    assert result.tiles == selftest.POSES == len(reference["quats"])
+    assert result.silhouette_px == int(reference["masks"].sum()) > 0
+    assert "passed" in result.summary
+
+
+def test_the_reference_poses_are_those_the_documented_command_makes(tmp_path, reference):
+    selftest.write_reference(tmp_path / "again.npz")
+    again = load_reference(tmp_path / "again.npz")
+    for key in ("quats", "trans", "K", "size"):
+        np.testing.assert_array_equal(again[key], reference[key])
+    assert compare(reference["masks"], again["masks"]).ok
+
+
+@pytest.mark.parametrize("tile_px", [0.25, -0.5])
+def test_a_shifted_rasterisation_fails(monkeypatch, tile_px):
+    shift_rasterisation(monkeypatch, tile_px)
+    with pytest.raises(RendererSelfTestError, match="unlike the reference: FAILED in 1[0-9][0-9] tiles"):
+        check_renderer()
+
+
+def test_one_pixel_edge_differences_pass_and_the_limit_grows_with_the_silhouette(reference):
+    ref = reference["masks"]
+    area = ref.reshape(len(ref), -1).sum(axis=1)
+    masks = ref.copy()
+    masks[:8, 0, 0] ^= 1  # one pixel off in 8 tiles, as on an NVIDIA H100
+    result = compare(ref, masks)
+    assert result.ok and (result.differing_tiles, result.differing_px, result.worst_tile_px) == (8, 8, 1)
+
+    big = int(np.argmax(area))
+    limit = int(selftest.TILE_LIMIT_FRACTION * area[big])
+    assert limit > selftest.TILE_LIMIT_PX
+    flat = ref[big].ravel().copy()
+    flat[np.flatnonzero(flat)[:limit]] = 0  # exactly the limit
+    masks = ref.copy()
+    masks[big] = flat.reshape(ref[big].shape)
+    assert compare(ref, masks).ok
+    flat[np.flatnonzero(flat)[:1]] = 0  # one more
+    masks[big] = flat.reshape(ref[big].shape)
+    assert compare(ref, masks).failing_tiles == 1
+
+    small = int(np.argmin(area))
+    assert selftest.TILE_LIMIT_FRACTION * area[small] < selftest.TILE_LIMIT_PX
+    masks = ref.copy()
+    masks[small].ravel()[: selftest.TILE_LIMIT_PX + 1] ^= 1
+    assert compare(ref, masks).failing_tiles == 1
+
+
+def test_an_empty_render_fails_every_tile(reference):
+    result = compare(reference["masks"], np.zeros_like(reference["masks"]))
+    assert result.failing_tiles == result.tiles and result.differing_px == result.silhouette_px
+    with pytest.raises(ValueError, match="do not match"):
+        compare(reference["masks"], reference["masks"][:-1])
+
+
+def test_a_damaged_reference_is_named(tmp_path, reference):
+    with pytest.raises(RendererSelfTestError, match="none.npz"):
+        check_renderer(tmp_path / "none.npz")
+    arrays = {key: np.asarray(value) for key, value in np.load(selftest.model_path(selftest.REFERENCE)).items()}
+    np.savez(tmp_path / "no_masks.npz", **{k: v for k, v in arrays.items() if k != "masks"})
+    with pytest.raises(RendererSelfTestError, match="no_masks.npz: missing masks"):
+        check_renderer(tmp_path / "no_masks.npz")
+    np.savez(tmp_path / "short.npz", **{**arrays, "trans": arrays["trans"][:-1]})
+    with pytest.raises(RendererSelfTestError, match=r"short.npz: inconsistent shapes: trans \(127, 3\)"):
+        check_renderer(tmp_path / "short.npz")
+    (tmp_path / "text.npz").write_text("not a reference")
+    with pytest.raises(RendererSelfTestError, match="text.npz"):
+        check_renderer(tmp_path / "text.npz")
+
+
+def test_check_renderer_command(capsys, monkeypatch):
+    assert cli_main(["check-renderer"]) == 0
+    out = capsys.readouterr().out
+    assert "GL_RENDERER: " in out and "renderer self-test passed: " in out
+    shift_rasterisation(monkeypatch, 0.5)
+    assert cli_main(["check-renderer"]) == 1
+    assert "uav-landing check-renderer: this machine's OpenGL draws the UAV unlike" in capsys.readouterr().err
