@@ -24,7 +24,7 @@ from uav_landing_vision.tracking.evaluate import (
     parse_variants,
     summary,
 )
-from uav_landing_vision.tracking.upf import load_tracker_config
+from uav_landing_vision.tracking.upf import Tracker, load_tracker_config
 
 FRAMES = 12
 
@@ -150,6 +150,33 @@ def test_frames_without_a_detection_are_boosted_from_the_last_pose(bag, monkeypa
     expected = [grow_roi(projected_roi(camera, vertices, quat[k - 1], position[k - 1]), config.grow, camera.width,
                          camera.height) for k in range(found, 8)]
     assert boxes[found:] == expected
+
+
+def test_stride_tracks_and_scores_every_nth_frame(bag, monkeypatch):
+    """--stride 3: frames 0, 3, 6, 9 of 12 are tracked, with their own stamps (the motion model
+    predicts across the gaps), and scored against their own truth; C1 uses no past frame, so
+    its estimates are those of the same frames tracked one by one."""
+    base = replace(load_tracker_config(), estimate="best")
+    full = evaluate_bag(bag, ["C1N0"], particles=30, roi_source="oracle", progress=False, base=base)
+    stamps = []
+    real_step = Tracker.step
+
+    def step(self, frame, stamp_ns, hypotheses=None):
+        stamps.append(stamp_ns)
+        return real_step(self, frame, stamp_ns, hypotheses)
+
+    monkeypatch.setattr(Tracker, "step", step)
+    part = evaluate_bag(bag, ["C1N0"], particles=30, roi_source="oracle", progress=False, base=base, stride=3)
+    truth = read_poses(bag)
+    assert part.frames == 4 and stamps == list(truth.stamps_ns[::3])
+    np.testing.assert_array_equal(part.truth[0], truth.trans[::3])
+    np.testing.assert_array_equal(part.estimates["C1N0"][0], full.estimates["C1N0"][0][::3])
+    assert "roi_source=oracle, stride=3" in summary(part)["sequence"] and "stride" not in summary(full)["sequence"]
+    for stride in (0, 1.5, True):
+        with pytest.raises(EvaluationError, match="stride must be a positive integer"):
+            evaluate_bag(bag, ["C1N0"], particles=30, roi_source="oracle", progress=False, stride=stride)
+    with pytest.raises(SystemExit, match="--stride must be at least 1, got 0"):
+        main(["evaluate", "--bag", str(bag), "--stride", "0"])
 
 
 def test_cli_writes_json_and_plots(bag, tmp_path, capsys):

@@ -14,6 +14,10 @@ hypotheses (each takes the first M or M − M0 of them, best first, as it needs)
   results with it say so in the table header and the JSON ``sequence``.
 
 A frame counts as lost (NaN error) when the tracker has no estimate or reports LOST.
+
+``stride`` N > 1 tracks and scores only every N-th frame, as a tracker that takes N frame intervals
+per step does live: it skips the frames between, and its motion model predicts across the gap.
+The thesis tracks every frame (N = 1, the default); so do paced replays (``make demo``).
 ``ms_per_frame`` is boosting plus the whole tracker step (not undistortion, ROI or detector).
 """
 
@@ -89,15 +93,17 @@ class EvaluationResult:
     stage_ms: dict  # variant -> {stage: mean ms}, shared stages included
     ms_per_frame: dict  # variant -> mean ms of boosting + tracker step
     states: dict  # variant -> (F,) TrackState values
+    stride: int = 1  # every stride-th frame of the bag was tracked and scored
 
 
 def evaluate_bag(bag, variants, *, particles: int | None = None, metric: str | None = None,
                  roi_source: str = "detector", frames: int | None = None, start: int = 0, seed: int = 0,
-                 base: TrackerConfig | None = None, progress: bool = True) -> EvaluationResult:
+                 base: TrackerConfig | None = None, stride: int = 1, progress: bool = True) -> EvaluationResult:
     """Run ``variants`` (``CxNy`` names) over the simulated ``bag``; see the module docstring.
-    ``start``: frames skipped first (the trackers start fresh there); ``frames``: how many are
-    then tracked (default: the rest). Tracker settings other than variant, N and seed come from
-    ``base`` (default: :class:`TrackerConfig`'s), M and the metric too unless given."""
+    ``start``: frames skipped first (the trackers start fresh there); ``frames``: how many follow
+    (default: the rest), of which every ``stride``-th is tracked. Tracker settings other than
+    variant, N and seed come from ``base`` (default: :class:`TrackerConfig`'s), M and the metric
+    too unless given."""
     from ..boosting import HypothesisConfig, PoseHypothesisGenerator
     from ..detection.track_box import TrackBox, TrackBoxConfig
     from ..evaluation import pose_errors
@@ -116,6 +122,8 @@ def evaluate_bag(bag, variants, *, particles: int | None = None, metric: str | N
     truth = read_poses(bag)
     if start < 0:
         raise EvaluationError(f"start must be non-negative, got {start}")
+    if isinstance(stride, bool) or int(stride) != stride or stride < 1:
+        raise EvaluationError(f"stride must be a positive integer, got {stride!r}")
     count = max(len(truth.stamps_ns) - int(start), 0)
     count = count if frames is None else min(int(frames), count)
     rois = detector_rois(camera) if roi_source == "detector" else None
@@ -143,7 +151,7 @@ def evaluate_bag(bag, variants, *, particles: int | None = None, metric: str | N
         ms = {n: {s: 0.0 for s in SHARED_STAGES + STAGES} for n in names}
         gt_t, gt_q = np.full((count, 3), np.nan), np.full((count, 4), np.nan)
         done = 0
-        for k, (stamp, raw) in enumerate(_frames(increasing_frames(bag), start, count, progress)):
+        for k, (stamp, raw) in enumerate(_frames(increasing_frames(bag), start, count, int(stride), progress)):
             clock = time.perf_counter()
             frame = cv2.remap(raw, maps[0], maps[1], cv2.INTER_LINEAR)
             t_undistort = time.perf_counter()
@@ -186,20 +194,23 @@ def evaluate_bag(bag, variants, *, particles: int | None = None, metric: str | N
     per_frame = {n: stage_ms[n]["boosting"] + sum(stage_ms[n][s] for s in STAGES) for n in names}
     return EvaluationResult(bag.name, roi_source, done, {n: (est_t[n][sl], est_q[n][sl]) for n in names},
                             errors, (gt_t[sl], gt_q[sl]), {n: est_cov[n][sl] for n in names}, stage_ms, per_frame,
-                            {n: states[n][sl] for n in names})
+                            {n: states[n][sl] for n in names}, int(stride))
 
 
-def _frames(iterator, start: int, count: int, progress: bool):
+def _frames(iterator, start: int, count: int, stride: int, progress: bool):
     from itertools import islice
 
     from tqdm import tqdm
 
-    return tqdm(islice(iterator, start, start + count), total=count, desc="evaluate", unit="frame", disable=not progress)
+    return tqdm(islice(iterator, start, start + count, stride), total=-(-count // stride), desc="evaluate",
+                unit="frame", disable=not progress)
 
 
 def sequence_label(result: EvaluationResult) -> str:
-    """The sequence name with the ROI source, as printed and stored in the JSON summary."""
-    return f"{result.sequence} (roi_source={result.roi_source})"
+    """The sequence name with the ROI source (and the stride, when not 1), as printed and stored
+    in the JSON summary."""
+    stride = f", stride={result.stride}" if result.stride != 1 else ""
+    return f"{result.sequence} (roi_source={result.roi_source}{stride})"
 
 
 def summary(result: EvaluationResult) -> dict:

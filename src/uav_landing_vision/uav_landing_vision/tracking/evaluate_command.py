@@ -18,6 +18,9 @@ def register(sub) -> None:
                    help="ROIs from the trained detector (default) or from the ground truth (oracle, labelled)")
     p.add_argument("--start", type=int, default=0, help="skip the first S frames (default: 0)")
     p.add_argument("--frames", type=int, help="only N frames (from --start)")
+    p.add_argument("--stride", type=int, default=1,
+                   help="track only every N-th frame, as a tracker that takes N frame intervals per step "
+                        "does live (default: 1, every frame, as the thesis)")
     p.add_argument("--seed", type=int, default=0, help="tracker seed (default: 0)")
     p.add_argument("--config", type=Path, help="tracker parameter file (default: the shipped config/tracker.yaml)")
     p.add_argument("--json", type=Path, help="write the JSON summary here")
@@ -38,6 +41,8 @@ def _run(args) -> int:
             raise ValueError("--frames must be at least 1")
         if args.start < 0:
             raise ValueError("--start must be non-negative")
+        if args.stride < 1:
+            raise ValueError(f"--stride must be at least 1, got {args.stride}")
         if args.seed < 0:
             raise ValueError(f"--seed must be non-negative, got {args.seed}")
         if args.json:
@@ -46,7 +51,8 @@ def _run(args) -> int:
             check_output("--plots", args.plots, folder=True)
         base = load_tracker_config(args.config)
         result = evaluate_bag(args.bag, variants, particles=args.particles, metric=args.metric,
-                              roi_source=args.roi_source, frames=args.frames, start=args.start, seed=args.seed, base=base)
+                              roi_source=args.roi_source, frames=args.frames, start=args.start, seed=args.seed, base=base,
+                              stride=args.stride)
     except (ValueError, ConfigError, EvaluationError, FileNotFoundError) as exc:
         raise SystemExit(f"uav-landing evaluate: {exc}") from exc
     print(format_results(result))
