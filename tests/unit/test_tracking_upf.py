@@ -315,6 +315,33 @@ def test_a_frozen_camera_repeating_its_last_frame_no_longer_vouches_for_the_trac
         TrackStateConfig(max_repeated_frames=-1)
 
 
+def test_coasting_and_repeats_count_frame_intervals_not_tracked_frames(renderer, frame):
+    """A tracker that sees every 3rd frame (stamps 3 Δt apart) coasts 3 intervals per frame without
+    hypotheses, so a limit of 4 intervals unconfirms its track at the 2nd such frame, not the 4th,
+    and one repeated picture over 3 intervals reaches a limit of 3; the coasting covariance grows
+    by 3 intervals per frame."""
+    gap = round(3 * 0.034e9)
+    track = TrackStateConfig(acquire_likelihood=0.1, acquire_frames=2, lost_likelihood=0.01, max_coast_frames=4,
+                             max_repeated_frames=3)
+    cfg = TrackerConfig.from_variant("C4N1", particles=40, boosted=10, track=track)
+    tracker = Tracker(cfg, CAMERA, renderer)
+    assert [tracker.step(shot(frame, k), k * gap, hypotheses(k)).state for k in range(3)][-1] == TrackState.TRACKING
+    coasting = [tracker.step(shot(frame, k), k * gap, None) for k in range(3, 5)]
+    assert [r.state for r in coasting] == [TrackState.TRACKING, TrackState.ACQUIRING]
+    first, second = coasting[0].position, coasting[1].position
+    s_pos = [n * cfg.covariance_coast_fraction * np.linalg.norm(p) for n, p in ((3, first), (6, second))]
+    off = Tracker(replace(cfg, covariance_coast_fraction=0.0, covariance_coast_deg=0.0), CAMERA, renderer)
+    for k in range(3):
+        off.step(shot(frame, k), k * gap, hypotheses(k))
+    for k, r, s in zip(range(3, 5), coasting, s_pos):
+        extra = r.covariance - off.step(shot(frame, k), k * gap, None).covariance
+        np.testing.assert_allclose(np.diag(extra)[:3], s**2)
+
+    tracker = Tracker(cfg, CAMERA, renderer)
+    assert [tracker.step(shot(frame, k), k * gap, hypotheses(k)).state for k in range(3)][-1] == TrackState.TRACKING
+    assert tracker.step(shot(frame, 2), 3 * gap, hypotheses(3)).state == TrackState.ACQUIRING  # frame 2 again
+
+
 def test_prediction_carries_the_track_through_a_frame_without_hypotheses(renderer, frame):
     tracker, _ = run(renderer, frame, "C4N1", frames=3)
     res = tracker.step(frame, 3, None)

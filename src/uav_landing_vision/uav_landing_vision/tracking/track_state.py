@@ -5,12 +5,12 @@ Rules, checked once per frame on the best particle's likelihood ``b``:
 
 - after (re)initialisation from pose boosting the track is ACQUIRING;
 - ACQUIRING → TRACKING after ``acquire_frames`` consecutive frames with ``b ≥ acquire_likelihood``;
-- TRACKING → ACQUIRING once the track has coasted ``max_coast_frames`` frames in a row without
-  boosted hypotheses (0: never), and no frame counts toward TRACKING until hypotheses return:
+- TRACKING → ACQUIRING once the track has coasted ``max_coast_frames`` frame intervals (Δt)
+  without boosted hypotheses (0: never), and no frame counts toward TRACKING until hypotheses return:
   a scene without the UAV can score high (a horizon edge under the colour metric), so without
   fresh evidence from the detector and boosting the estimate is not vouched for;
-- likewise once ``max_repeated_frames`` frames in a row have been pixel for pixel the frame before
-  them (0: never), until the picture changes: a live camera's sensor noise never repeats a frame,
+- likewise once the tracked frames have been pixel for pixel the frame before them over
+  ``max_repeated_frames`` frame intervals (0: never), until the picture changes: a live camera's sensor noise never repeats a frame,
   but a frozen camera or driver re-sending its last picture with new stamps does, and the track
   would hold the UAV still, and say TRACKING, while the aircraft flies on;
 - any state → LOST after ``lost_frames`` consecutive frames with ``b < lost_likelihood``, or at
@@ -70,8 +70,8 @@ class TrackMonitor:
 
     def update(self, best_likelihood: float, coasting: int = 0, repeated: int = 0) -> TrackState:
         """The state after a frame whose best particle scored ``best_likelihood``, the track
-        having coasted ``coasting`` frames in a row without boosted hypotheses, and the frame being
-        the ``repeated``-th in a row identical to the one before it."""
+        having coasted ``coasting`` frame intervals without boosted hypotheses, and the tracked
+        frames having repeated the one before them over ``repeated`` frame intervals."""
         cfg = self.config
         unconfirmed = 0 < cfg.max_coast_frames <= coasting or 0 < cfg.max_repeated_frames <= repeated
         self._bad = self._bad + 1 if best_likelihood < cfg.lost_likelihood else 0

@@ -100,8 +100,8 @@ class TrackerConfig:
     covariance_floor_deg: tuple[float, ...] = (10.0, 5.0, 8.0)
     covariance_range_fraction: tuple[float, ...] = (0.2, 0.05, 0.075)
     covariance_bands_m: tuple[float, ...] = (15.0, 60.0)
-    # ours, 0 = off: per frame in a row without boosted hypotheses (the track coasting), σ added to each
-    # position axis (this fraction of the range) and to each rotation axis (deg), growing linearly
+    # ours, 0 = off: per frame interval (Δt) without boosted hypotheses (the track coasting), σ added to
+    # each position axis (this fraction of the range) and to each rotation axis (deg), growing linearly
     covariance_coast_fraction: float = 0.02
     covariance_coast_deg: float = 0.5
     depth_prior_sigma: float = 0.20  # ours, 0 = thesis: relative σ of the boosted-depth prior (depth_prior)
@@ -286,7 +286,7 @@ def particle_covariance(particles: ParticleSet, pos: np.ndarray, quat: np.ndarra
 
 
 def coasting_covariance(pos: np.ndarray, frames: int, range_fraction: float, sigma_rad: float) -> np.ndarray:
-    """Ours: the 6×6 variance added after ``frames`` frames in a row without boosted hypotheses,
+    """Ours: the 6×6 variance added after ``frames`` frame intervals (Δt) without boosted hypotheses,
     σ = ``frames·range_fraction·|pos|`` on each position axis and ``frames·sigma_rad`` on each
     rotation axis. Without hypotheses nothing ties the cloud to the frame, and the particles stay
     as tight as they were while the error grows: the errors of such frames leave the cloud's
@@ -336,9 +336,9 @@ class Tracker:
         self._fresh: ParticleSet | None = None  # this frame's boosted particles
         self._anchor: float | None = None  # this frame's boosted depth z_b (depth_prior), None: no prior
         self._turn_anchor: np.ndarray | None = None  # last refined rotation (rotation_prior), None: no prior
-        self._coasting = 0  # frames in a row without boosted hypotheses (coasting_covariance)
+        self._coasting = 0  # frame intervals (Δt) since the last frame with boosted hypotheses
         self._last_frame: np.ndarray | None = None  # the last frame stepped, to tell a repeated one
-        self._repeated = 0  # frames in a row identical to the one before them (track_state)
+        self._repeated = 0  # frame intervals (Δt) over which the tracked frames repeated (track_state)
         self._last_stamp_ns: int | None = None  # of the last frame stepped since the last reset
         self.window = RotationWindow(config.rotation_window, 1.5 * config.motion.dt, config.rotation_window_max_turn_deg)
 
@@ -381,8 +381,8 @@ class Tracker:
         steps = prediction_steps(None if self._last_stamp_ns is None else stamp_ns - self._last_stamp_ns,
                                  self.config.motion.dt)
         self._last_stamp_ns = int(stamp_ns)
-        self._coasting = 0 if new is not None else self._coasting + 1
-        self._count_repeats(frame)
+        self._coasting = 0 if new is not None else self._coasting + steps
+        self._count_repeats(frame, steps)
         self._anchor = self._boosted_depth(new)
         mixed = self._mix(new, steps)
         clock.lap("proposal")
@@ -556,10 +556,11 @@ class Tracker:
         clock.lap("output")
         return TrackResult(stamp_ns, state, pos, quat, cov, best_w, n_eff, clock.ms, particles)
 
-    def _count_repeats(self, frame: np.ndarray) -> None:
-        """Count the frames in a row identical, pixel for pixel, to the one before (a frozen camera)."""
+    def _count_repeats(self, frame: np.ndarray, steps: int) -> None:
+        """Count the frame intervals (``steps`` since the last tracked frame) over which the tracked
+        frames were identical, pixel for pixel, to the one before (a frozen camera)."""
         same = self._last_frame is not None and np.array_equal(frame, self._last_frame)
-        self._repeated = self._repeated + 1 if same else 0
+        self._repeated = self._repeated + steps if same else 0
         self._last_frame = np.array(frame, copy=True)
 
     def _next_turn_anchor(self, pos: np.ndarray, quat: np.ndarray) -> np.ndarray | None:
