@@ -56,3 +56,24 @@ def ros_domain_id():
         lock.close()
         return
     pytest.fail(f"no free ROS domain among {DOMAINS.start}..{DOMAINS.stop - 1}")
+
+
+@pytest.fixture
+def shift_rasterisation(monkeypatch):
+    """``shift(tile_px)``: the renderer then draws every silhouette ``tile_px`` tile pixels right of
+    where its box says, as an OpenGL with another pixel-centre rule would (the self-test's fault)."""
+    import numpy as np
+
+    from uav_landing_vision.render import renderer, selftest
+
+    real = renderer.tile_boxes
+
+    def shift(tile_px: float) -> None:
+        def shifted(*args):
+            boxes, visible = real(*args)
+            step = tile_px * (boxes[:, 2] - boxes[:, 0]) / selftest.TILE
+            return boxes - np.stack([step, 0 * step, step, 0 * step], axis=1), visible
+
+        monkeypatch.setattr(renderer, "tile_boxes", shifted)
+
+    return shift

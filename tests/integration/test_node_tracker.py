@@ -25,8 +25,6 @@ from uav_landing_vision.nodes.poses import numpy_to_pose, pose_to_numpy
 from uav_landing_vision.nodes import tracker as tracker_node
 from uav_landing_vision.nodes.qos import IMAGE_QOS, RELIABLE_QOS
 from uav_landing_vision.nodes.tracker import BoostedPoses, TrackerNode
-from uav_landing_vision.render import renderer as renderer_module
-from uav_landing_vision.render import selftest
 from uav_landing_vision.tracking.upf import STAGES, Tracker, load_tracker_config
 
 PARAMS = Path(__file__).parents[2] / "config" / "tracker.yaml"
@@ -319,15 +317,8 @@ def test_bad_parameters_fail_start_up(ros, override, message):
         TrackerNode(context=ros.context, cli_args=["--ros-args", "--params-file", str(PARAMS)], parameter_overrides=[override])
 
 
-def test_a_renderer_that_fails_its_self_test_fails_start_up(ros, monkeypatch):
-    """A GL that draws the silhouettes a quarter of a tile pixel off (another pixel-centre rule)."""
-    real = renderer_module.tile_boxes
-
-    def shifted(*args):
-        boxes, visible = real(*args)
-        step = 0.25 * (boxes[:, 2] - boxes[:, 0]) / selftest.TILE
-        return boxes + np.stack([step, step, step, step], axis=1), visible
-
-    monkeypatch.setattr(renderer_module, "tile_boxes", shifted)
+def test_a_renderer_that_fails_its_self_test_fails_start_up(ros, shift_rasterisation):
+    """An OpenGL that draws the silhouettes a quarter of a tile pixel off (another pixel-centre rule)."""
+    shift_rasterisation(0.25)
     with pytest.raises(ConfigError, match="OpenGL: this machine's OpenGL draws the UAV unlike the reference: FAILED"):
         TrackerNode(context=ros.context, cli_args=["--ros-args", "--params-file", str(PARAMS)])

@@ -5,7 +5,6 @@ import numpy as np
 import pytest
 
 from uav_landing_vision.cli import main as cli_main
-from uav_landing_vision.render import renderer as renderer_module
 from uav_landing_vision.render import selftest
 from uav_landing_vision.render.selftest import RendererSelfTestError, check_renderer, compare, load_reference
 
@@ -13,19 +12,6 @@ from uav_landing_vision.render.selftest import RendererSelfTestError, check_rend
 @pytest.fixture(scope="module")
 def reference():
     return load_reference()
-
-
-def shift_rasterisation(monkeypatch, tile_px: float) -> None:
-    """Make the renderer draw every silhouette ``tile_px`` tile pixels right of where its box says,
-    as a GL with another pixel-centre convention would."""
-    real = renderer_module.tile_boxes
-
-    def shifted(*args):
-        boxes, visible = real(*args)
-        step = tile_px * (boxes[:, 2] - boxes[:, 0]) / selftest.TILE
-        return boxes - np.stack([step, 0 * step, step, 0 * step], axis=1), visible
-
-    monkeypatch.setattr(renderer_module, "tile_boxes", shifted)
 
 
 def test_the_shipped_reference_passes_on_this_machine(reference):
@@ -45,8 +31,8 @@ def test_the_reference_poses_are_those_the_documented_command_makes(tmp_path, re
 
 
 @pytest.mark.parametrize("tile_px", [0.25, -0.5])
-def test_a_shifted_rasterisation_fails(monkeypatch, tile_px):
-    shift_rasterisation(monkeypatch, tile_px)
+def test_a_shifted_rasterisation_fails(shift_rasterisation, tile_px):
+    shift_rasterisation(tile_px)
     with pytest.raises(RendererSelfTestError, match="unlike the reference: FAILED in 1[0-9][0-9] tiles"):
         check_renderer()
 
@@ -98,12 +84,16 @@ def test_a_damaged_reference_is_named(tmp_path, reference):
     (tmp_path / "text.npz").write_text("not a reference")
     with pytest.raises(RendererSelfTestError, match="text.npz"):
         check_renderer(tmp_path / "text.npz")
+    shipped = selftest.model_path(selftest.REFERENCE).read_bytes()
+    (tmp_path / "cut.npz").write_bytes(shipped[: len(shipped) // 4])
+    with pytest.raises(RendererSelfTestError, match="cut.npz"):
+        check_renderer(tmp_path / "cut.npz")
 
 
-def test_check_renderer_command(capsys, monkeypatch):
+def test_check_renderer_command(capsys, shift_rasterisation):
     assert cli_main(["check-renderer"]) == 0
     out = capsys.readouterr().out
     assert "GL_RENDERER: " in out and "renderer self-test passed: " in out
-    shift_rasterisation(monkeypatch, 0.5)
+    shift_rasterisation(0.5)
     assert cli_main(["check-renderer"]) == 1
     assert "uav-landing check-renderer: this machine's OpenGL draws the UAV unlike" in capsys.readouterr().err

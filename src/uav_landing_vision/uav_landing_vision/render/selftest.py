@@ -6,11 +6,11 @@ pixel-centre or winding convention, or a faulty driver build. The reference
 (``models/render_reference.npz``) holds 128 poses at 5–80 m, the camera, and the tiles that
 Mesa's llvmpipe drew for them. :func:`check_renderer` draws them again here and compares tile by
 tile. On an NVIDIA H100, 3–8 of 300 such tiles differed from llvmpipe's, each by one edge pixel
-(of this reference's 128, one).
-Drawing the silhouettes a tenth of a tile pixel off changes 2–27 pixels a tile (median 13); a
-quarter of a pixel, 3–55. The limit per tile (``TILE_LIMIT_PX`` pixels, or ``TILE_LIMIT_FRACTION``
-of the tile's silhouette when that is more) passes the first and fails the tenth of a pixel in
-85 of the 128 tiles, the quarter in 127 or all 128.
+(of this reference's 128 tiles, one). Drawing the silhouettes a tenth of a tile pixel off changes
+2–27 pixels a tile (median 13); a quarter of a pixel, 3–55. The limit per tile
+(``TILE_LIMIT_PX`` pixels, or ``TILE_LIMIT_FRACTION`` of the tile's silhouette when that is
+more) passes the first and fails the tenth of a pixel in 85 of the 128 tiles, the quarter in
+127 or all 128.
 
 The shipped reference was made with Mesa llvmpipe (Debian 12) by::
 
@@ -18,6 +18,7 @@ The shipped reference was made with Mesa llvmpipe (Debian 12) by::
 """
 
 import argparse
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -104,7 +105,7 @@ def load_reference(path=None) -> dict:
         if m == 0 or wrong:
             raise ValueError(f"inconsistent shapes: {', '.join(wrong) or 'no poses'}")
         ref["camera"] = CameraModel(int(ref["size"][0]), int(ref["size"][1]), ref["K"])
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, zipfile.BadZipFile) as exc:
         raise RendererSelfTestError(f"render reference {path}: {exc}") from exc
     return ref
 

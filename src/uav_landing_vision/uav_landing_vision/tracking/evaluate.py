@@ -14,11 +14,11 @@ hypotheses (each takes the first M or M − M0 of them, best first, as it needs)
   results with it say so in the table header and the JSON ``sequence``.
 
 A frame counts as lost (NaN error) when the tracker has no estimate or reports LOST.
+``ms_per_frame`` is boosting plus the whole tracker step (not undistortion, ROI or detector).
 
 ``stride`` N > 1 tracks and scores only every N-th frame, as a tracker that takes N frame intervals
 per step does live: it skips the frames between, and its motion model predicts across the gap.
 The thesis tracks every frame (N = 1, the default); so do paced replays (``make demo``).
-``ms_per_frame`` is boosting plus the whole tracker step (not undistortion, ROI or detector).
 """
 
 import time
