@@ -124,6 +124,7 @@ def evaluate_bag(bag, variants, *, particles: int | None = None, metric: str | N
         raise EvaluationError(f"start must be non-negative, got {start}")
     if isinstance(stride, bool) or int(stride) != stride or stride < 1:
         raise EvaluationError(f"stride must be a positive integer, got {stride!r}")
+    stride = int(stride)
     count = max(len(truth.stamps_ns) - int(start), 0)
     count = count if frames is None else min(int(frames), count)
     rois = detector_rois(camera) if roi_source == "detector" else None
@@ -151,7 +152,7 @@ def evaluate_bag(bag, variants, *, particles: int | None = None, metric: str | N
         ms = {n: {s: 0.0 for s in SHARED_STAGES + STAGES} for n in names}
         gt_t, gt_q = np.full((count, 3), np.nan), np.full((count, 4), np.nan)
         done = 0
-        for k, (stamp, raw) in enumerate(_frames(increasing_frames(bag), start, count, int(stride), progress)):
+        for k, (stamp, raw) in enumerate(_frames(increasing_frames(bag), start, count, stride, progress)):
             clock = time.perf_counter()
             frame = cv2.remap(raw, maps[0], maps[1], cv2.INTER_LINEAR)
             t_undistort = time.perf_counter()
@@ -194,7 +195,7 @@ def evaluate_bag(bag, variants, *, particles: int | None = None, metric: str | N
     per_frame = {n: stage_ms[n]["boosting"] + sum(stage_ms[n][s] for s in STAGES) for n in names}
     return EvaluationResult(bag.name, roi_source, done, {n: (est_t[n][sl], est_q[n][sl]) for n in names},
                             errors, (gt_t[sl], gt_q[sl]), {n: est_cov[n][sl] for n in names}, stage_ms, per_frame,
-                            {n: states[n][sl] for n in names}, int(stride))
+                            {n: states[n][sl] for n in names}, stride)
 
 
 def _frames(iterator, start: int, count: int, stride: int, progress: bool):

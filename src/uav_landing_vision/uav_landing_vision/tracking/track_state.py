@@ -6,13 +6,14 @@ Rules, checked once per frame on the best particle's likelihood ``b``:
 - after (re)initialisation from pose boosting the track is ACQUIRING;
 - ACQUIRING → TRACKING after ``acquire_frames`` consecutive frames with ``b ≥ acquire_likelihood``;
 - TRACKING → ACQUIRING once the track has coasted ``max_coast_frames`` frame intervals (Δt)
-  without boosted hypotheses (0: never), and no frame counts toward TRACKING until hypotheses return:
-  a scene without the UAV can score high (a horizon edge under the colour metric), so without
-  fresh evidence from the detector and boosting the estimate is not vouched for;
+  without boosted hypotheses (0: never), and no frame counts toward TRACKING until hypotheses
+  return: a scene without the UAV can score high (a horizon edge under the colour metric), so
+  without fresh evidence from the detector and boosting the estimate is not vouched for;
 - likewise once the tracked frames have been pixel for pixel the frame before them over
-  ``max_repeated_frames`` frame intervals (0: never), until the picture changes: a live camera's sensor noise never repeats a frame,
-  but a frozen camera or driver re-sending its last picture with new stamps does, and the track
-  would hold the UAV still, and say TRACKING, while the aircraft flies on;
+  ``max_repeated_frames`` frame intervals (0: never), until the picture changes: a live camera's
+  sensor noise never repeats a frame, but a frozen camera or driver re-sending its last picture
+  with new stamps does, and the track would hold the UAV still, and say TRACKING, while the
+  aircraft flies on;
 - any state → LOST after ``lost_frames`` consecutive frames with ``b < lost_likelihood``, or at
   once when there is nothing to track (no particles and no hypotheses). LOST drops the
   particles; the next frame with hypotheses re-initialises the filter (ACQUIRING again).
