@@ -205,6 +205,22 @@ def test_unmatched_entries_older_than_the_cache_are_dropped(ros, small_database)
     assert out is not None and stamp_ns(out.header.stamp) == stamp_ns(frame_msg(11).header.stamp)
 
 
+def test_frames_the_detector_skipped_are_counted_not_dropped(ros, small_database):
+    """A detector slower than the camera skips frames, so their images wait here for detections
+    that never come; and an image can leave the queue unread. A complete pair ends every older
+    entry (both inputs arrive in stamp order): counted as skipped. Before, they waited for the
+    cache to overflow and were logged as dropped errors."""
+    rig = Rig(ros, small_database)
+    rig.send_info()
+    rig.image_pub.publish(frame_msg(1))  # the detector skipped frame 1
+    rig.det_pub.publish(detections_msg(2, []))  # frame 2's image was not read
+    assert ros.spin_until(lambda: rig.node.counters["received"] == rig.node.counters["detections_received"] == 1)
+    out = rig.send(frame_msg(3), detections_msg(3, []))
+    assert out is not None and stamp_ns(out.header.stamp) == stamp_ns(frame_msg(3).header.stamp)
+    assert rig.node.counters["skipped"] == 2 and rig.node.counters["dropped"] == 0
+    assert len(rig.node._cache) == 0
+
+
 def test_calibration_the_database_was_not_made_for_is_refused(ros, small_database):
     rig = Rig(ros, small_database)
     other = CameraModel(320, 240, [[300.0, 0, 160.0], [0, 300.0, 120.0], [0, 0, 1]])

@@ -222,6 +222,19 @@ def test_frames_a_newer_frame_supersedes_are_skipped_not_tracked(ros, generator)
     assert rig.status_of(1) is None and rig.status_of(2) is None
 
 
+def test_hypotheses_whose_image_was_lost_are_skipped_not_dropped(ros, generator):
+    """A tracker slower than its camera: the image queue keeps the newest frames, so the
+    hypotheses of a frame whose image it never read come alone. Once a newer frame is complete
+    they are counted as skipped; they were logged as dropped errors, 8 a landing replayed live."""
+    rig = Rig(ros, Parameter("node.hypotheses_timeout_s", value=10.0))
+    rig.send_info()
+    assert rig.send(0, frame_msg(0), boosted_msg(generator, 0)) is not None
+    rig.hyp_pub.publish(boosted_msg(generator, 1))
+    assert ros.spin_until(lambda: rig.node.counters["hypotheses_received"] == 2)
+    assert rig.send(2, frame_msg(2), boosted_msg(generator, 2)) is not None
+    assert rig.node.counters["skipped"] == 1 and rig.node.counters["dropped"] == 0
+
+
 def test_a_replay_started_again_restarts_the_track(ros, generator):
     rig = Rig(ros)
     rig.send_info()

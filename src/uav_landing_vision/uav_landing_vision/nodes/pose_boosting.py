@@ -11,7 +11,9 @@ Matching: image and detections are paired by exact ``header.stamp`` in a cache o
 ``node.cache_size`` stamps, in either order of arrival (pairs complete before a calibration the
 database matches are held, as many, until one comes); when it overflows, the oldest
 unpaired entry is dropped and counted, and so are the waiting entries more than 2 s after a new
-message's stamp (a replay started again).
+message's stamp (a replay started again). A pair completes every entry older than it: a frame
+the detector skipped (slower than the camera), or detections whose image left this node's queue
+unread, is counted (``skipped``), not dropped.
 
 Hypothesis count: every message carries M = ``particles`` poses
 (``HypothesisConfig.count(first_frame=True)``); the tracker takes the first M (at
@@ -113,6 +115,9 @@ class PoseBoostingNode(LandingNode):
             missing = "detections" if "image" in old.items else "image"
             self.drop(f"no {missing} with stamp {old.stamp_ns} ns within {self._cache.size} stamps")
         if entry is not None:
+            # Both inputs arrive in stamp order: an older entry's other message is not coming. The
+            # detector skipped that frame, or its image left this node's queue unread (slower than the camera).
+            self.counters["skipped"] += len(self._cache.pop_older(entry.stamp_ns))
             self._boost(*entry.items["image"], entry.items["detections"])
 
     def _best_roi(self, detections: DetectionArray, width: int, height: int):

@@ -16,14 +16,16 @@ cache of ``node.cache_size`` stamps). An image waits at most ``node.hypotheses_t
 for its hypotheses, then is tracked by prediction, unless a newer image has come: frames are
 tracked in stamp order, and one superseded by a newer frame (a complete successor, or a newer
 image waiting) is skipped and counted (``skipped``), so a camera faster than the tracker builds
-no backlog of ever older frames (the motion model then predicts over the gap). Frames due before the first
+no backlog of ever older frames (the motion model then predicts over the gap). Hypotheses whose
+image never came while a newer one did (lost from the image queue while the tracker was busy)
+count as skipped too. Frames due before the first
 calibration are held (``node.cache_size`` of them) and tracked once it comes. An image stamped more than
 2 s before the last tracked frame starts a new time-line (a replay or clock started again): the
 track restarts, where every later frame would otherwise be dropped as out of order. So does a frame
 tracked longer after the last one than the core's prediction reaches (``MAX_PREDICTION_STEPS`` Δt,
 ~2 s: a camera that stalled): its carried particles are not of that frame's time, and its status
 would say TRACKING on them. Hypotheses without
-an image, late ones and malformed ones (non-finite, non-unit quaternion: the frame is then
+an image (none newer either), late ones and malformed ones (non-finite, non-unit quaternion: the frame is then
 tracked by prediction at once) are logged, counted and dropped. A frame the core cannot step
 with the current track (e.g. one started from finite but absurd hypotheses) restarts the track there.
 
@@ -185,13 +187,15 @@ class TrackerNode(LandingNode):
         expired = self._cache.pop_expired(self.node_config.hypotheses_timeout_s)
         newest = max((e.stamp_ns for e in expired if "image" in e.items), default=None)
         for old in expired:
-            self._expire(old, superseded=old.stamp_ns != newest)
+            self._expire(old, superseded=newest is not None and old.stamp_ns < newest)
 
     def _expire(self, entry, superseded: bool = False) -> None:
         """An entry that will not be completed: its image is tracked by prediction, unless a newer
         frame has come (a camera faster than the tracker): tracking a stale frame would only delay
-        that one, and every later one, further. A skipped frame is counted, not tracked."""
-        if "image" in entry.items and (superseded or self._cache.has_newer("image", entry.stamp_ns)):
+        that one, and every later one, further. A skipped frame is counted, not tracked. So are
+        hypotheses whose image was lost while the tracker was busy (the image queue keeps the
+        newest frames); without a newer image either, the image stream has stopped: an error."""
+        if superseded or self._cache.has_newer("image", entry.stamp_ns):
             self.counters["skipped"] += 1
             return
         if "image" in entry.items:
