@@ -190,6 +190,15 @@ def test_cli_writes_json_and_plots(bag, tmp_path, capsys):
     assert "roi_source=oracle" in capsys.readouterr().out
 
 
+def test_cli_refuses_a_renderer_that_fails_the_self_test(bag, capsys, shift_rasterisation):
+    """The tracker node refuses to start on such a machine; evaluate, which reports its figures, too."""
+    shift_rasterisation(0.5)
+    assert main(["evaluate", "--bag", str(bag), "--roi-source", "oracle", "--frames", "2", "--variants", "C1N0"]) == 1
+    captured = capsys.readouterr()
+    assert "uav-landing evaluate: this machine's OpenGL draws the UAV unlike the reference" in captured.err
+    assert "roi_source=oracle" not in captured.out  # no figures
+
+
 def test_cli_takes_particles_and_metric_from_the_config_file(bag, tmp_path, monkeypatch):
     """Without --particles or --metric, ``evaluate --config`` runs the file's M and metric."""
     import importlib

@@ -1,4 +1,7 @@
-"""``uav-landing evaluate``: thesis-format tracking results of CxNy variants on a simulated bag (§6.7.1)."""
+"""``uav-landing evaluate``: thesis-format tracking results of CxNy variants on a simulated bag (§6.7.1).
+
+It runs the renderer's self-test first, as the tracker node does at start-up, and stops on a
+machine whose silhouettes are unlike the reference's (``render.selftest``)."""
 
 from pathlib import Path
 
@@ -32,6 +35,7 @@ def _run(args) -> int:
     from ..cli import check_output
     from ..config import ConfigError
     from ..evaluation import save_summary, write_report
+    from ..render.selftest import check_renderer
     from .evaluate import EvaluationError, evaluate_bag, format_results, parse_variants, sequence_label, summary
     from .upf import load_tracker_config
 
@@ -50,6 +54,9 @@ def _run(args) -> int:
         if args.plots:
             check_output("--plots", args.plots, folder=True)
         base = load_tracker_config(args.config)
+        # As the tracker node does: figures from silhouettes unlike the reference's are not the tracker's
+        # (RendererSelfTestError is an OSError: the CLI reports it).
+        print(f"renderer self-test {check_renderer().summary}")
         result = evaluate_bag(args.bag, variants, particles=args.particles, metric=args.metric,
                               roi_source=args.roi_source, frames=args.frames, start=args.start, seed=args.seed, base=base,
                               stride=args.stride)
