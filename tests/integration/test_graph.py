@@ -14,7 +14,7 @@ from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from rclpy.serialization import serialize_message
 from rosbags.rosbag2 import CompressionMode, Writer
 from rosbags.typesys import Stores, get_typestore
-from sensor_msgs.msg import Image
+from sensor_msgs.msg import CompressedImage, Image
 from test_node_common import SMALL_CAMERA, frame_entries, rgb_frame, ros, write_bag  # noqa: F401 (fixture)
 
 from uav_landing_msgs.msg import TrackerStatus
@@ -46,14 +46,32 @@ def _finish(proc: subprocess.Popen) -> int:
 DECK_CAM = {"/camera/image_raw": "/deck_cam/image_raw", "/camera/camera_info": "/deck_cam/camera_info"}
 
 
-@pytest.mark.parametrize("remap", [False, True], ids=["camera", "deck_cam-remapped"])
-def test_bag_replayed_through_undistort_in_separate_processes(ros, ros_domain_id, tmp_path, remap):
+def _compressed(entries):
+    """The entries with each frame as image_transport's compressed plugin records it: PNG of its
+    BGR pixels on /camera/image_raw/compressed."""
+    out = []
+    for topic, type_name, t, msg in entries:
+        if type_name == "sensor_msgs/msg/Image":
+            ok, png = cv2.imencode(".png", image_to_numpy(msg)[..., ::-1])
+            assert ok
+            topic, type_name, msg = f"{topic}/compressed", "sensor_msgs/msg/CompressedImage", CompressedImage(
+                header=msg.header, format="rgb8; png compressed bgr8", data=png.tobytes())
+        out.append((topic, type_name, t, msg))
+    return out
+
+
+@pytest.mark.parametrize("recording", ["camera", "deck_cam-remapped", "compressed"])
+def test_bag_replayed_through_undistort_in_separate_processes(ros, ros_domain_id, tmp_path, recording):
     """Paced on the probe's acknowledgement: every frame reaches the probe, rectified, then the
-    graph stops. Also a recording of other topic names, remapped onto the graph's."""
+    graph stops. Also a recording of other topic names, remapped onto the graph's, and one of
+    compressed frames, which the graph has undistort decode and the player pace on."""
     frames = 8
+    remap, compressed = recording == "deck_cam-remapped", recording == "compressed"
     entries = frame_entries(SMALL_CAMERA, frames)
     if remap:
         entries = [(DECK_CAM[topic], *rest) for topic, *rest in entries]
+    if compressed:
+        entries = _compressed(entries)
     bag = write_bag(tmp_path / "bag", entries)
     remaps = [a for ours, recorded in DECK_CAM.items() for a in ("--remap", f"{recorded}:={ours}")] if remap else []
     rect = []
@@ -85,7 +103,10 @@ def test_bag_replayed_through_undistort_in_separate_processes(ros, ros_domain_id
     assert [stamp_ns(m.header.stamp) for m in rect] == [1_000_000_000 + i * 33_000_000 for i in range(frames)], output
     maps = SMALL_CAMERA.undistortion_maps()
     for i, msg in enumerate(rect):
-        np.testing.assert_array_equal(image_to_numpy(msg), cv2.remap(rgb_frame(SMALL_CAMERA, i), *maps, cv2.INTER_LINEAR))
+        pixels = rgb_frame(SMALL_CAMERA, i)[..., ::-1] if compressed else rgb_frame(SMALL_CAMERA, i)
+        assert msg.encoding == ("bgr8" if compressed else "rgb8")
+        np.testing.assert_array_equal(image_to_numpy(msg), cv2.remap(pixels, *maps, cv2.INTER_LINEAR))
+    assert ("the bag's frames are compressed" in output) == compressed
     assert "[bag_player]" in output and "[undistort]" in output and "bag played; stopping the graph" in output
     assert f"acknowledged {frames}, ack timeouts 0, dropped 0" in output
     assert "all nodes stopped cleanly" in output
@@ -190,6 +211,12 @@ def test_a_replay_waits_for_the_links_its_bag_can_bring_up(tmp_path):
     truth.header.stamp.sec = 1
     full = write_bag(tmp_path / "full", frame_entries(SMALL_CAMERA, 1) + [("/uav/ground_truth", "geometry_msgs/msg/PoseStamped", 10**9, truth)])
     assert graph_module.replay_ready_topics(full) == graph_module.PIPELINE_TOPICS
+    packed_frames = write_bag(tmp_path / "packed_frames", _compressed(frame_entries(SMALL_CAMERA, 1)))
+    assert graph_module.replay_ready_topics(packed_frames) == ("/camera/image_raw/compressed", *(
+        t for t in graph_module.PIPELINE_TOPICS if t not in ("/camera/image_raw", "/uav/ground_truth")))
+    assert graph_module.frame_overrides(packed_frames) == {
+        "undistort": [("image_transport", "compressed")], "bag_player": [("pace_topic", "/camera/image_raw/compressed")]}
+    assert graph_module.frame_overrides(full) == {}
     untrue = write_bag(tmp_path / "untrue", frame_entries(SMALL_CAMERA, 1), compression=CompressionMode.FILE)
     untrue_links = tuple(t for t in graph_module.PIPELINE_TOPICS if t != "/uav/ground_truth")
     assert graph_module.replay_ready_topics(untrue) == untrue_links

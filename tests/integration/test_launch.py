@@ -43,7 +43,8 @@ def test_launch_file_compiles(tmp_path):
 def test_launch_and_graph_start_the_same_nodes_each_with_script_module_and_parameters():
     launch = _assignments(LAUNCH)
     assert set(launch["NODES"]) | {launch["PLAYER"]} == set(GRAPH_NODES) and launch["PLAYER"] == PLAYER
-    assert "from uav_landing_vision.graph import parse_remaps, replay_ready_topics" in LAUNCH.read_text()  # the graph's links and remaps
+    # the graph's links, remaps and frame transport
+    assert "from uav_landing_vision.graph import frame_overrides, parse_remaps, replay_ready_topics" in LAUNCH.read_text()
     scripts = _console_scripts()
     for name in GRAPH_NODES:
         assert scripts[name] == f"uav_landing_vision.nodes.{name}:main"
@@ -106,6 +107,30 @@ def test_launch_replay_runs_on_the_bags_clock_and_waits_for_the_links_the_graph_
     assert params[PLAYER]["ready_topics"] == graph_topics == [t for t in PIPELINE_TOPICS if t != "/uav/ground_truth"]
     live = _launch_nodes(monkeypatch, "", str(config))  # the live camera: wall time, no player
     assert set(live) == set(GRAPH_NODES) - {PLAYER} and not any(live.values())
+
+
+def test_launch_replays_compressed_frames_as_the_graph_does(monkeypatch, tmp_path):
+    """A recording of image_transport's compressed frames: undistort decodes them and the player
+    paces on them and waits for their link, with the same parameters ``uav-landing graph`` gives."""
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    bag = tmp_path / "compressed"
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    with Writer(bag, version=9) as writer:
+        for topic, type_name in [("/camera/image_raw/compressed", "sensor_msgs/msg/CompressedImage"),
+                                 ("/camera/camera_info", "sensor_msgs/msg/CameraInfo")]:
+            writer.write(writer.add_connection(topic, type_name, typestore=typestore), 1, b"\x00\x01\x00\x00")
+    config = Path(__file__).parents[2] / "config"
+    params = _launch_nodes(monkeypatch, str(bag), str(config))
+    assert params["undistort"]["image_transport"] == "compressed" and "image_transport" not in params["detector"]
+    assert params[PLAYER]["pace_topic"] == "/camera/image_raw/compressed"
+    plan = _plan(types.SimpleNamespace(nodes=None, bag=bag, param=[], drain=2.0, stop_timeout=10.0, config=config))[1]
+    assert dict(plan["undistort"])["image_transport"] == "compressed"
+    assert dict(plan[PLAYER])["pace_topic"] == params[PLAYER]["pace_topic"]
+    assert params[PLAYER]["ready_topics"] == yaml.safe_load(dict(plan[PLAYER])["ready_topics"])
+    assert params[PLAYER]["ready_topics"][0] == "/camera/image_raw/compressed"
+    assert "/camera/image_raw" not in params[PLAYER]["ready_topics"]
 
 
 def test_launch_remaps_topics_in_every_node_as_the_graph_does(monkeypatch, tmp_path):

@@ -4,7 +4,7 @@ import cv2
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
-from sensor_msgs.msg import CameraInfo, Image
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from test_node_common import SMALL_CAMERA, camera_info_msg, image_msg, rgb_frame, ros  # noqa: F401 (fixture)
 
 from uav_landing_vision.camera import save_camera_info_yaml
@@ -17,10 +17,11 @@ from uav_landing_vision.nodes.undistort import HELD_IMAGES, Undistort
 class Rig:
     """The node under test wired to the probe's publishers and collecting subscriptions."""
 
-    def __init__(self, ros, input_qos=IMAGE_QOS, **node_kwargs):
+    def __init__(self, ros, input_qos=IMAGE_QOS, compressed=False, **node_kwargs):
         self.ros = ros
         self.node = ros.add(Undistort(context=ros.context, **node_kwargs))
-        self.image_pub = ros.probe.create_publisher(Image, "camera/image_raw", input_qos)
+        self.image_pub = (ros.probe.create_publisher(CompressedImage, "camera/image_raw/compressed", input_qos) if compressed
+                          else ros.probe.create_publisher(Image, "camera/image_raw", input_qos))
         self.info_pub = ros.probe.create_publisher(CameraInfo, "camera/camera_info", input_qos)
         self.rect = ros.collect(Image, "camera/image_rect", IMAGE_QOS)
         self.rect_info = ros.collect(CameraInfo, "camera/camera_info_rect", IMAGE_QOS)
@@ -129,7 +130,7 @@ def test_malformed_images_are_dropped_and_the_node_keeps_working(ros):
         (wrong_encoding, "unsupported image encoding 'rgba8'"),
         (short_data, "image data has 100 bytes"),
         (wrong_size, "image is 40x20 but the calibration is 40x30"),
-        (empty, "image is 0x0"),
+        (empty, "empty image (0x0)"),
     ]:
         assert rig.send_image(msg) is None
         assert reason in rig.node.last_error
@@ -174,6 +175,44 @@ def test_best_effort_camera_driver_with_camera_qos_sensor_data(ros):
     np.testing.assert_array_equal(image_to_numpy(rect), _expected(SMALL_CAMERA, pixels))
 
 
+def compressed_msg(pixels: np.ndarray, ext: str, fmt: str, sec: int = 1) -> CompressedImage:
+    """What image_transport's compressed plugin sends for a bgr8 (or mono8) frame."""
+    ok, buf = cv2.imencode(ext, pixels)
+    assert ok
+    msg = CompressedImage(format=fmt, data=buf.tobytes())
+    msg.header.stamp.sec, msg.header.frame_id = sec, "camera_optical_frame"
+    return msg
+
+
+def test_a_compressed_camera_with_image_transport_compressed(ros):
+    """Recorded bags and camera drivers often carry image_transport's compressed frames (JPEG or PNG
+    on camera/image_raw/compressed): decoded, rectified, published as bgr8 (mono8 for a grey camera).
+    Undecodable data is dropped by name and the node goes on."""
+    rig = Rig(ros, compressed=True, parameter_overrides=[Parameter("image_transport", value="compressed")])
+    assert rig.node.count_publishers("camera/image_raw") == 0 and not rig.node.get_subscriptions_info_by_topic(
+        "/camera/image_raw")
+    rig.send_info(SMALL_CAMERA)
+    bgr = rgb_frame(SMALL_CAMERA, 7)[..., ::-1].copy()
+    raw = compressed_msg(bgr, ".png", "bgr8; png compressed bgr8", sec=9)
+    rect = rig.send_image(raw)
+    assert (rect.header, rect.encoding, rect.width, rect.height) == (raw.header, "bgr8", 40, 30)
+    np.testing.assert_array_equal(image_to_numpy(rect), _expected(SMALL_CAMERA, bgr))  # PNG: lossless
+    assert rig.rect_info[-1].header == raw.header
+    jpeg = compressed_msg(bgr, ".jpg", "rgb8; jpeg compressed bgr8")
+    rect = rig.send_image(jpeg)
+    decoded = cv2.imdecode(np.frombuffer(bytes(jpeg.data), np.uint8), cv2.IMREAD_COLOR)
+    assert rect.encoding == "bgr8"
+    np.testing.assert_array_equal(image_to_numpy(rect), _expected(SMALL_CAMERA, decoded))
+    grey = rig.send_image(compressed_msg(bgr[..., 1].copy(), ".png", "mono8; png compressed mono8"))
+    assert grey.encoding == "mono8"
+    broken = compressed_msg(bgr, ".jpg", "jpeg")
+    broken.data = broken.data[:40]
+    assert rig.send_image(broken) is None and "cannot decode the compressed image (40 bytes" in rig.node.last_error
+    small = compressed_msg(np.zeros((20, 40, 3), np.uint8), ".png", "png")
+    assert rig.send_image(small) is None and "image is 40x20 but the calibration is 40x30" in rig.node.last_error
+    assert rig.send_image(raw) is not None
+
+
 def test_calibration_from_a_file_parameter(ros, tmp_path):
     path = tmp_path / "cam.yaml"
     save_camera_info_yaml(SMALL_CAMERA, path)
@@ -190,6 +229,7 @@ def test_calibration_from_a_file_parameter(ros, tmp_path):
         (Parameter("interpolation", value="bicubic"), "interpolation: 'bicubic' is not one of"),
         (Parameter("camera_info_file", value="/nonexistent/cam.yaml"), "camera_info_file: cannot read camera calibration"),
         (Parameter("rate", value=2.0), r"unknown key\(s\) \['rate'\]"),
+        (Parameter("image_transport", value="theora"), "image_transport: 'theora' is not one of"),
     ],
 )
 def test_bad_parameters_fail_start_up(ros, override, message):

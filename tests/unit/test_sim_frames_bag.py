@@ -210,6 +210,30 @@ def test_a_compressed_sequence_is_read_back_like_a_plain_one(tmp_path):
     assert np.array_equal(read_poses(packed).trans, read_poses(plain).trans)
 
 
+def test_frames_recorded_compressed_only_are_read_from_their_topic(tmp_path):
+    """A recording of image_transport's compressed frames (``/camera/image_raw/compressed``, PNG or
+    JPEG of the BGR pixels) is read where ``/camera/image_raw`` is asked for and absent, so
+    ``evaluate`` and ``eval-detector`` take it as the graph does."""
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    compressed, header = typestore.types["sensor_msgs/msg/CompressedImage"], typestore.types["std_msgs/msg/Header"]
+    stamp = typestore.types["builtin_interfaces/msg/Time"]
+    frames = [np.random.default_rng(i).integers(0, 256, (30, 40, 3), dtype=np.uint8) for i in range(3)]
+    with Writer(tmp_path / "bag", version=9) as writer:
+        conn = writer.add_connection("/camera/image_raw/compressed", "sensor_msgs/msg/CompressedImage", typestore=typestore)
+        for i, rgb in enumerate(frames):
+            png = cv2.imencode(".png", rgb[..., ::-1])[1].ravel()
+            msg = compressed(header=header(stamp=stamp(sec=1 + i, nanosec=0), frame_id="cam"), format="rgb8; png compressed bgr8",
+                             data=png)
+            writer.write(conn, (1 + i) * 10**9, typestore.serialize_cdr(msg, conn.msgtype))
+    read = list(iter_frames(tmp_path / "bag"))
+    assert [s for s, _ in read] == [(1 + i) * 10**9 for i in range(3)]
+    for (_, image), rgb in zip(read, frames, strict=True):
+        np.testing.assert_array_equal(image, rgb)
+
+
 @pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
 def test_a_cut_off_compressed_bag_is_a_clear_error(tmp_path, storage):
     """A zstd-compressed file (``ros2 bag record --compression-mode file``) cut off: rosbags lets

@@ -12,6 +12,8 @@ One process per node, parameters from the installed ``share/uav_landing_vision/c
 - ``remap:=FROM:=TO[,FROM:=TO...]`` remaps topics (absolute names) in every node, as
   ``uav-landing graph --remap``: e.g. ``remap:=/deck_cam/image_raw:=/camera/image_raw,/deck_cam/camera_info:=/camera/camera_info``
   for a camera driver, or a recording, of other topic names (the player's pace and ready topics follow).
+  A bag whose frames are only compressed ones (``/camera/image_raw/compressed``) is played with
+  ``undistort`` decoding them, as ``uav-landing graph`` does (``frame_overrides``).
 """
 
 import os
@@ -26,7 +28,7 @@ from launch_ros.actions import Node
 
 # Every link of the graph that the bag can bring up: a replay waits for all of them, or its first
 # frames are lost to the nodes still loading their models.
-from uav_landing_vision.graph import parse_remaps, replay_ready_topics
+from uav_landing_vision.graph import frame_overrides, parse_remaps, replay_ready_topics
 
 PACKAGE = "uav_landing_vision"
 # The graph without the player, in start order (as uav_landing_vision.graph.GRAPH_NODES).
@@ -46,9 +48,11 @@ def _nodes(context):
                     output="screen", emulate_tty=True)
 
     sim_time = [{"use_sim_time": True}] if bag else []  # a replay runs on the bag's /clock
-    actions = [node(name, sim_time) for name in NODES]
+    frames = {name: dict(items) for name, items in frame_overrides(bag, remaps).items()} if bag else {}
+    actions = [node(name, sim_time + ([frames[name]] if name in frames else [])) for name in NODES]
     if bag:
-        player = node(PLAYER, [{"bag": bag, "clock": True, "ready_topics": list(replay_ready_topics(bag, remaps))}])
+        player = node(PLAYER, [{"bag": bag, "clock": True, "ready_topics": list(replay_ready_topics(bag, remaps)),
+                                **frames.get(PLAYER, {})}])
         actions += [
             player,
             RegisterEventHandler(OnProcessExit(

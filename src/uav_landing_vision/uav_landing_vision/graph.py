@@ -12,6 +12,9 @@ With ``--bag`` every node runs on the bag's time (``use_sim_time``, from the pla
 as with ``ros2 bag play --clock``: the GCS bridge would otherwise find every replayed pose stale.
 A bag that cannot be opened is refused before any node starts. ``--remap FROM:=TO`` remaps a
 topic in every node (``-r``), e.g. a recording's ``/deck_cam/image_raw`` onto ``/camera/image_raw``.
+A bag whose frames are only image_transport's compressed ones (``/camera/image_raw/compressed``)
+is played with ``undistort`` decoding them (``image_transport: compressed``) and the player pacing
+on them; ``--param`` can still set either.
 This module imports no ROS module: the nodes do, in their own processes.
 """
 
@@ -54,6 +57,9 @@ PIPELINE_TOPICS = (
 # The inputs only a bag provides. A replay waits for those its bag has: nothing else ever publishes
 # the others (a recorded landing has no ground truth), and a paced player would give up on them.
 RECORDED_TOPICS = ("/camera/image_raw", "/camera/camera_info", "/uav/ground_truth")
+# The frames as image_transport's compressed plugin sends them (sensor_msgs/CompressedImage): a
+# bag that has only these is played with undistort decoding them (frame_overrides).
+COMPRESSED_FRAMES = "/camera/image_raw/compressed"
 _CLEAN_EXIT = (0, -signal.SIGINT, 128 + signal.SIGINT)
 _POLL_S = 0.1
 STACK_DUMP_S = 1.0  # a hung node's time to print its stacks (SIGUSR1) before SIGKILL
@@ -80,7 +86,30 @@ def _ready_topics(recorded: set[str], remaps=None) -> tuple[str, ...]:
     """:func:`replay_ready_topics` of a bag with the topics ``recorded``."""
     remaps = remaps or {}
     played = {remaps.get(t, t) for t in recorded}
-    return tuple(t for t in PIPELINE_TOPICS if t not in RECORDED_TOPICS or remaps.get(t, t) in played)
+    topics = tuple(t for t in PIPELINE_TOPICS if t not in RECORDED_TOPICS or remaps.get(t, t) in played)
+    return (COMPRESSED_FRAMES, *topics) if _compressed_frames(recorded, remaps) else topics
+
+
+def _compressed_frames(recorded: set[str], remaps=None) -> bool:
+    """Whether a bag with the topics ``recorded`` plays its frames only as compressed ones
+    (:data:`COMPRESSED_FRAMES` and no ``/camera/image_raw``, after the topic ``remaps``)."""
+    remaps = remaps or {}
+    played = {remaps.get(t, t) for t in recorded}
+    return remaps.get(COMPRESSED_FRAMES, COMPRESSED_FRAMES) in played and remaps.get(
+        "/camera/image_raw", "/camera/image_raw") not in played
+
+
+def frame_overrides(bag, remaps=None) -> dict:
+    """``{node: [(key, value)]}`` that play ``bag`` if its frames are only compressed ones
+    (:data:`COMPRESSED_FRAMES`): ``undistort`` decodes them, the player paces on them. Empty for
+    a bag of raw frames, or one that cannot be read (bag_player reports that at start-up)."""
+    from .sim.bag import BagError
+
+    try:
+        compressed = _compressed_frames(_recorded_topics(bag), remaps)
+    except BagError:
+        return {}
+    return {"undistort": [("image_transport", "compressed")], PLAYER: [("pace_topic", COMPRESSED_FRAMES)]} if compressed else {}
 
 
 def _recorded_topics(bag) -> set[str]:
@@ -197,8 +226,19 @@ def _plan(args, remaps=None) -> tuple[list[str], dict]:
     if args.bag is None:
         overrides = {n: [] for n in names}
     else:  # the whole graph waits for its links unless told which
-        whole = set(names) == set(GRAPH_NODES) and not any(i.startswith(f"{PLAYER}:ready_topics=") for i in args.param)
-        overrides = replay_overrides(names, args.bag, _ready_topics(recorded, remaps) if whole else None)
+        told = any(i.startswith(f"{PLAYER}:ready_topics=") for i in args.param)
+        whole = set(names) == set(GRAPH_NODES) and not told
+        frames = frame_overrides(args.bag, remaps)
+        ready = _ready_topics(recorded, remaps) if whole else None
+        if frames and not (whole or told):  # the parameter file's inputs, the frames' topic swapped
+            ready = tuple(t for t in _ready_topics(recorded, remaps) if t in (COMPRESSED_FRAMES, "/camera/camera_info"))
+        overrides = replay_overrides(names, args.bag, ready)
+        if frames:
+            print(f"[graph] the bag's frames are compressed ({COMPRESSED_FRAMES}): undistort image_transport=compressed, "
+                  f"bag_player pace_topic={COMPRESSED_FRAMES}", flush=True)
+        for node, items in frames.items():
+            if node in overrides:
+                overrides[node] += items
     for item in args.param:
         node, sep, assignment = item.partition(":")
         key, eq, value = assignment.partition("=")

@@ -1,4 +1,4 @@
-"""The calibrated deck camera: projection, distortion (3.16)–(3.17), camera_info I/O."""
+"""The calibrated deck camera: projection, distortion (3.16)–(3.17), camera_info I/O, compressed frames."""
 
 from .camera_info import (
     CameraInfoError,
@@ -8,6 +8,7 @@ from .camera_info import (
     load_camera_info_yaml,
     save_camera_info_yaml,
 )
+from .compressed import decode_compressed
 from .model import DEFAULT_FRAME_ID, CameraModel
 
 __all__ = [
@@ -17,6 +18,7 @@ __all__ = [
     "camera_from_info_fields",
     "camera_from_info_msg",
     "camera_info_fields",
+    "decode_compressed",
     "load_camera_info_yaml",
     "save_camera_info_yaml",
 ]

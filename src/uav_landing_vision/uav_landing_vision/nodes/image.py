@@ -1,4 +1,5 @@
-"""``sensor_msgs/Image`` ↔ numpy for the 8-bit encodings the pipeline uses (cv_bridge is not available).
+"""``sensor_msgs/Image`` ↔ numpy for the 8-bit encodings the pipeline uses (cv_bridge is not available),
+and ``sensor_msgs/CompressedImage`` → numpy (``camera.decode_compressed``).
 
 Arrays are ``uint8`` of shape ``(height, width, 3)`` for ``rgb8``/``bgr8`` and ``(height, width)``
 for ``mono8``. Row padding (``step`` > ``width × channels``) is honoured on input and never
@@ -8,7 +9,9 @@ supported channel is one byte, so both byte orders give the same array.
 
 import cv2
 import numpy as np
-from sensor_msgs.msg import Image
+from sensor_msgs.msg import CompressedImage, Image
+
+from ..camera import decode_compressed
 
 CHANNELS = {"rgb8": 3, "bgr8": 3, "mono8": 1}
 
@@ -33,6 +36,15 @@ def image_to_numpy(msg: Image) -> np.ndarray:
     rows = np.frombuffer(msg.data, dtype=np.uint8).reshape(height, step)[:, :row_bytes]
     rows.flags.writeable = False
     return rows.reshape(height, width, channels) if channels > 1 else rows
+
+
+def compressed_to_numpy(msg: CompressedImage) -> tuple[np.ndarray, str]:
+    """``(pixels, encoding)`` of a compressed frame: ``bgr8`` colour or ``mono8`` grey, as
+    :func:`image_to_numpy` gives them; :class:`ImageError` if it cannot be decoded."""
+    try:
+        return decode_compressed(msg.data, msg.format)
+    except ValueError as exc:
+        raise ImageError(str(exc)) from exc
 
 
 def numpy_to_image(pixels: np.ndarray, encoding: str, header) -> Image:

@@ -11,11 +11,15 @@ distinct calibration. Parameters (``config/undistort.yaml``):
   ``camera/camera_info``. Relative paths are relative to the working directory.
 - ``camera_qos``: ``reliable`` (the graph's image QoS, ``qos.IMAGE_QOS``) or ``sensor_data``
   (best effort, to accept a camera driver that publishes best effort; frames may be lost).
+- ``image_transport``: ``raw`` (``camera/image_raw``, ``sensor_msgs/Image``) or ``compressed``
+  (``camera/image_raw/compressed``, ``sensor_msgs/CompressedImage``, JPEG or PNG as
+  ``image_transport``'s compressed plugin sends them; published rectified as ``bgr8``, or
+  ``mono8`` for a grey camera).
 
 Images that come before the first usable calibration are held (the newest :data:`HELD_IMAGES`)
 and rectified once it comes: a camera_info may arrive a moment after the image it was sent with.
 Dropped (logged, counted on ``/diagnostics``): held images beyond those, images whose size
-differs from the calibration's, unsupported encodings, malformed data, and unusable
+differs from the calibration's, unsupported encodings, malformed or undecodable data, and unusable
 ``camera_info`` messages (the previous calibration stays in use).
 """
 
@@ -25,13 +29,13 @@ from dataclasses import dataclass
 from typing import Literal
 
 import cv2
-from sensor_msgs.msg import CameraInfo, Image
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
 from ..camera import CameraInfoError, camera_info_fields, load_camera_info_yaml
 from ..config import ConfigError
 from .base import LandingNode, run_node
 from .calibration import Calibration
-from .image import ImageError, image_to_numpy, numpy_to_image
+from .image import ImageError, compressed_to_numpy, image_to_numpy, numpy_to_image
 from .qos import IMAGE_QOS, SENSOR_QOS
 
 HELD_IMAGES = 5  # images kept while no calibration is usable, as many as the image QoS keeps
@@ -43,6 +47,7 @@ class UndistortConfig:
     interpolation: Literal["nearest", "linear", "cubic"] = "linear"
     camera_info_file: str = ""  # calibration YAML used instead of the camera_info topic; "" = topic
     camera_qos: Literal["reliable", "sensor_data"] = "reliable"  # QoS of the two input subscriptions
+    image_transport: Literal["raw", "compressed"] = "raw"  # camera/image_raw, or camera/image_raw/compressed
 
 
 class Undistort(LandingNode):
@@ -63,7 +68,10 @@ class Undistort(LandingNode):
                 raise ConfigError(f"camera_info_file: {exc}") from exc
         else:
             self.create_subscription(CameraInfo, "camera/camera_info", self._on_camera_info, camera_qos)
-        self.create_subscription(Image, "camera/image_raw", self._on_image, camera_qos)
+        if self.config.image_transport == "compressed":
+            self.create_subscription(CompressedImage, "camera/image_raw/compressed", self._on_image, camera_qos)
+        else:
+            self.create_subscription(Image, "camera/image_raw", self._on_image, camera_qos)
 
     def _use_camera(self, camera) -> None:
         try:
@@ -84,25 +92,29 @@ class Undistort(LandingNode):
             for (image,) in held:
                 self._rectify(image)
 
-    def _on_image(self, msg: Image) -> None:
+    def _on_image(self, msg: Image | CompressedImage) -> None:
         self.counters["received"] += 1
         if self._camera is None:
             self.hold(self._uncalibrated, (msg,), HELD_IMAGES, self._calibration.waiting_for("no usable camera_info"))
             return
         self._rectify(msg)
 
-    def _rectify(self, msg: Image) -> None:
+    def _rectify(self, msg: Image | CompressedImage) -> None:
         camera = self._camera
-        if (msg.width, msg.height) != (camera.width, camera.height):
-            self.drop(f"image is {msg.width}x{msg.height} but the calibration is {camera.width}x{camera.height}")
-            return
         try:
-            raw = image_to_numpy(msg)
+            if isinstance(msg, CompressedImage):
+                raw, encoding = compressed_to_numpy(msg)
+            else:
+                raw, encoding = image_to_numpy(msg), msg.encoding
         except ImageError as exc:
             self.drop(str(exc))
             return
+        height, width = raw.shape[:2]
+        if (width, height) != (camera.width, camera.height):
+            self.drop(f"image is {width}x{height} but the calibration is {camera.width}x{camera.height}")
+            return
         rect = cv2.remap(raw, *self._maps, _INTERPOLATION[self.config.interpolation])
-        self._image_pub.publish(numpy_to_image(rect, msg.encoding, msg.header))
+        self._image_pub.publish(numpy_to_image(rect, encoding, msg.header))
         self._info_pub.publish(CameraInfo(header=msg.header, **self._rect_info))
         self.counters["published"] += 1
 

@@ -16,9 +16,12 @@ from rosbags.rosbag2 import CompressionFormat, CompressionMode, Reader, StorageP
 from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
 
-from ..camera import DEFAULT_FRAME_ID, CameraModel, camera_from_info_msg, camera_info_fields, save_camera_info_yaml
+from ..camera import (
+    DEFAULT_FRAME_ID, CameraModel, camera_from_info_msg, camera_info_fields, decode_compressed, save_camera_info_yaml,
+)
 
 IMAGE_TOPIC = "/camera/image_raw"
+COMPRESSED_IMAGE_TOPIC = IMAGE_TOPIC + "/compressed"  # image_transport's compressed frames, read where IMAGE_TOPIC is absent
 INFO_TOPIC = "/camera/camera_info"
 TRUTH_TOPIC = "/uav/ground_truth"
 POSE_TYPES = ("geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/PoseWithCovarianceStamped")
@@ -138,8 +141,8 @@ def _stamp(header) -> int:
 def _decode_image(msg) -> np.ndarray:
     """RGB uint8 (H, W, 3) of a sensor_msgs/Image (rgb8, bgr8, mono8) or CompressedImage."""
     if hasattr(msg, "format"):
-        bgr = cv2.imdecode(np.asarray(msg.data, np.uint8), cv2.IMREAD_COLOR)
-        return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+        pixels, encoding = decode_compressed(msg.data, msg.format)
+        return cv2.cvtColor(pixels, cv2.COLOR_BGR2RGB if encoding == "bgr8" else cv2.COLOR_GRAY2RGB)
     channels = {"rgb8": 3, "bgr8": 3, "mono8": 1}.get(msg.encoding)
     if channels is None:
         raise ValueError(f"unsupported image encoding {msg.encoding!r} (rgb8, bgr8, mono8)")
@@ -158,6 +161,8 @@ def _topic_messages(path, topic: str, types: tuple[str, ...]):
     try:
         with closing(open_bag(path)) as reader:
             conns = [c for c in reader.connections if (c.topic == topic if topic else c.msgtype in types)]
+            if not conns and topic == IMAGE_TOPIC:
+                conns = [c for c in reader.connections if c.topic == COMPRESSED_IMAGE_TOPIC]
             if not conns:
                 found = sorted(f"{c.topic} [{c.msgtype}]" for c in reader.connections)
                 raise ValueError(f"{path}: no topic {topic or 'of type ' + ' or '.join(types)}; has {found}")
@@ -173,7 +178,8 @@ def _topic_messages(path, topic: str, types: tuple[str, ...]):
 
 
 def iter_images(path, topic: str = IMAGE_TOPIC):
-    """RGB frames of an image topic of a bag (empty topic: the first Image/CompressedImage topic)."""
+    """RGB frames of an image topic of a bag (empty topic: the first Image/CompressedImage topic;
+    :data:`IMAGE_TOPIC`: :data:`COMPRESSED_IMAGE_TOPIC` in a bag that has only that)."""
     for msg in _topic_messages(path, topic, IMAGE_TYPES):
         yield _decode_image(msg)
 

@@ -1,0 +1,31 @@
+"""Frames a camera driver sent compressed (``sensor_msgs/CompressedImage``: JPEG or PNG bytes).
+
+``image_transport``'s compressed plugin writes 8-bit colour frames as BGR JPEG or PNG (its
+``format`` field, e.g. ``"rgb8; jpeg compressed bgr8"``, names the original encoding and what
+was compressed), grey frames as grey ones. Its ``compressedDepth`` frames (16-bit depth) are
+not camera frames and are refused.
+"""
+
+import cv2
+import numpy as np
+
+
+def decode_compressed(data, fmt: str = "") -> tuple[np.ndarray, str]:
+    """``(pixels, encoding)`` of compressed image bytes: ``uint8 (H, W, 3)`` ``bgr8`` for a colour
+    image (an alpha channel is dropped), ``(H, W)`` ``mono8`` for a grey one. ValueError, naming the
+    format, for data OpenCV cannot decode, and for depth or 16-bit images."""
+    if "compresseddepth" in fmt.lower().replace(" ", ""):
+        raise ValueError(f"compressed image format '{fmt}' is a depth image, not a camera frame")
+    buffer = np.frombuffer(bytes(data), np.uint8)
+    pixels = cv2.imdecode(buffer, cv2.IMREAD_UNCHANGED) if buffer.size else None
+    if pixels is None or pixels.size == 0:
+        raise ValueError(f"cannot decode the compressed image ({len(buffer)} bytes, format '{fmt}')")
+    if pixels.dtype != np.uint8:
+        raise ValueError(f"compressed image (format '{fmt}') has {pixels.dtype} pixels, expected 8-bit")
+    if pixels.ndim == 2:
+        return pixels, "mono8"
+    if pixels.shape[2] == 4:
+        return cv2.cvtColor(pixels, cv2.COLOR_BGRA2BGR), "bgr8"
+    if pixels.shape[2] == 3:
+        return pixels, "bgr8"
+    raise ValueError(f"compressed image (format '{fmt}') has {pixels.shape[2]} channels")

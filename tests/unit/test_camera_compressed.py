@@ -1,0 +1,59 @@
+"""``camera.decode_compressed``: the frames image_transport's compressed plugin sends, and what it must refuse."""
+
+import cv2
+import numpy as np
+import pytest
+
+from uav_landing_vision.camera import decode_compressed
+
+
+def _frame(seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return cv2.GaussianBlur(rng.integers(0, 256, (48, 64, 3), dtype=np.uint8), (5, 5), 0)
+
+
+def _encode(ext: str, pixels: np.ndarray, *params) -> bytes:
+    ok, buf = cv2.imencode(ext, pixels, list(params))
+    assert ok
+    return buf.tobytes()
+
+
+def test_png_colour_is_exact_bgr8():
+    bgr = _frame()
+    pixels, encoding = decode_compressed(_encode(".png", bgr), "bgr8; png compressed bgr8")
+    assert encoding == "bgr8" and pixels.dtype == np.uint8
+    np.testing.assert_array_equal(pixels, bgr)
+
+
+def test_jpeg_colour_is_close_and_keeps_the_channel_order():
+    bgr = _frame()
+    bgr[:16] = (255, 0, 0)  # a blue band: BGR order survives
+    pixels, encoding = decode_compressed(_encode(".jpg", bgr, cv2.IMWRITE_JPEG_QUALITY, 95), "rgb8; jpeg compressed bgr8")
+    assert encoding == "bgr8" and pixels.shape == bgr.shape
+    assert np.abs(pixels.astype(int) - bgr).mean() < 8.0  # lossy, chroma subsampled
+    assert pixels[4:12, 4:60, 0].mean() > 240 and pixels[4:12, 4:60, 2].mean() < 15
+
+
+def test_grey_is_mono8_and_alpha_is_dropped():
+    grey = _frame()[..., 1].copy()
+    pixels, encoding = decode_compressed(_encode(".png", grey), "mono8; png compressed mono8")
+    assert encoding == "mono8" and pixels.shape == grey.shape
+    np.testing.assert_array_equal(pixels, grey)
+    bgra = np.dstack([_frame(), np.full((48, 64), 7, np.uint8)])
+    pixels, encoding = decode_compressed(_encode(".png", bgra), "bgra8; png compressed bgra8")
+    assert encoding == "bgr8"
+    np.testing.assert_array_equal(pixels, bgra[..., :3])
+
+
+@pytest.mark.parametrize("data, fmt, message", [
+    (b"", "jpeg", "cannot decode the compressed image (0 bytes, format 'jpeg')"),
+    (b"\xff\xd8\xff not really a jpeg", "jpeg", "cannot decode the compressed image (21 bytes"),
+    (None, "16UC1; png compressed", "has uint16 pixels, expected 8-bit"),
+    (b"\x00" * 16, "16UC1; compressedDepth png", "is a depth image, not a camera frame"),
+])
+def test_what_cannot_be_a_camera_frame_is_refused_by_name(data, fmt, message):
+    if data is None:
+        data = _encode(".png", np.full((8, 8), 1000, np.uint16))
+    with pytest.raises(ValueError) as err:
+        decode_compressed(data, fmt)
+    assert message in str(err.value)
