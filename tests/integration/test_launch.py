@@ -44,7 +44,7 @@ def test_launch_and_graph_start_the_same_nodes_each_with_script_module_and_param
     launch = _assignments(LAUNCH)
     assert set(launch["NODES"]) | {launch["PLAYER"]} == set(GRAPH_NODES) and launch["PLAYER"] == PLAYER
     # the graph's links, remaps and frame transport
-    assert "from uav_landing_vision.graph import frame_overrides, parse_remaps, replay_ready_topics" in LAUNCH.read_text()
+    assert "from uav_landing_vision.graph import TRACKER_ACK, frame_overrides, parse_remaps, replay_ready_topics" in LAUNCH.read_text()
     scripts = _console_scripts()
     for name in GRAPH_NODES:
         assert scripts[name] == f"uav_landing_vision.nodes.{name}:main"
@@ -105,6 +105,9 @@ def test_launch_replay_runs_on_the_bags_clock_and_waits_for_the_links_the_graph_
     args = types.SimpleNamespace(nodes=None, bag=bag, param=[], drain=2.0, stop_timeout=10.0, config=config)
     graph_topics = yaml.safe_load(dict(_plan(args)[1][PLAYER])["ready_topics"])
     assert params[PLAYER]["ready_topics"] == graph_topics == [t for t in PIPELINE_TOPICS if t != "/uav/ground_truth"]
+    graph_player = dict(_plan(args)[1][PLAYER])  # both pace on the tracker's status
+    assert params[PLAYER]["ack_topic"] == graph_player["ack_topic"] == "uav/tracker_status"
+    assert params[PLAYER]["ack_type"] == graph_player["ack_type"] == "uav_landing_msgs/msg/TrackerStatus"
     live = _launch_nodes(monkeypatch, "", str(config))  # the live camera: wall time, no player
     assert set(live) == set(GRAPH_NODES) - {PLAYER} and not any(live.values())
 

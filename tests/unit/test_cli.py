@@ -55,6 +55,11 @@ def test_graph_replaying_a_bag_through_the_whole_graph_waits_for_every_link(tmp_
 
     assert yaml.safe_load(plan()["ready_topics"]) == list(PIPELINE_TOPICS)  # the ground truth's link among them
     assert "ready_topics" not in plan("undistort,bag_player")  # a part of the graph: the file's setting
+    # Paced on the tracker's status where there is a tracker (every frame tracked), else the file's ack.
+    assert (plan()["ack_topic"], plan("undistort,detector,pose_boosting,tracker,bag_player")["ack_topic"]) == (
+        "uav/tracker_status", "uav/tracker_status")
+    assert "ack_topic" not in plan("undistort,bag_player")
+    assert plan("undistort,tracker,bag_player", "bag_player:ack_topic=/mine")["ack_topic"] == "/mine"  # the user's wins
     own = _plan(argparse.Namespace(nodes=None, bag=bag, param=["bag_player:ready_topics=[/camera/image_raw]"],
                                    drain=2.0, stop_timeout=10.0, config=config_path("tracker.yaml").parent))[1]
     assert [v for k, v in own["bag_player"] if k == "ready_topics"] == ["[/camera/image_raw]"]  # the user's own only

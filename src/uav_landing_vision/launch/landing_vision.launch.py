@@ -3,7 +3,8 @@
 One process per node, parameters from the installed ``share/uav_landing_vision/config/<node>.yaml``
 (the same files ``uav-landing graph`` uses). Arguments:
 
-- ``bag:=/path/to/bag`` replays a recorded landing with ``bag_player`` once every link of the
+- ``bag:=/path/to/bag`` replays a recorded landing with ``bag_player`` (paced on the tracker's
+  status: every frame tracked) once every link of the
   graph is up (those of the recorded inputs the bag has: ``replay_ready_topics``), every node on
   the bag's time (``use_sim_time``, the player publishing ``/clock``), and shuts the graph down
   ``DRAIN_S`` after the bag ends (for the last frames' poses); without it the graph runs on the
@@ -28,7 +29,7 @@ from launch_ros.actions import Node
 
 # Every link of the graph that the bag can bring up: a replay waits for all of them, or its first
 # frames are lost to the nodes still loading their models.
-from uav_landing_vision.graph import frame_overrides, parse_remaps, replay_ready_topics
+from uav_landing_vision.graph import TRACKER_ACK, frame_overrides, parse_remaps, replay_ready_topics
 
 PACKAGE = "uav_landing_vision"
 # The graph without the player, in start order (as uav_landing_vision.graph.GRAPH_NODES).
@@ -52,7 +53,7 @@ def _nodes(context):
     actions = [node(name, sim_time + ([frames[name]] if name in frames else [])) for name in NODES]
     if bag:
         player = node(PLAYER, [{"bag": bag, "clock": True, "ready_topics": list(replay_ready_topics(bag, remaps)),
-                                **frames.get(PLAYER, {})}])
+                                **dict(TRACKER_ACK), **frames.get(PLAYER, {})}])
         actions += [
             player,
             RegisterEventHandler(OnProcessExit(

@@ -75,8 +75,7 @@ def graph_overrides(bag: Path, report_dir: Path, sequence: str) -> dict:
 
     tracker = load_tracker_config()
     overrides = replay_overrides(GRAPH_NODES, bag, replay_ready_topics(bag))
-    overrides["bag_player"] += [("mode", "paced"), ("ack_topic", "uav/tracker_status"),
-                                ("ack_type", "uav_landing_msgs/msg/TrackerStatus")]
+    overrides["bag_player"].append(("mode", "paced"))  # on the tracker's status (replay_overrides)
     overrides["evaluator"] += [("out_dir", str(report_dir)), ("sequence", sequence),
                                ("variant", f"{tracker.variant}N{tracker.iterations}")]
     return overrides

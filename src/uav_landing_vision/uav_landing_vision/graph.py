@@ -60,6 +60,10 @@ RECORDED_TOPICS = ("/camera/image_raw", "/camera/camera_info", "/uav/ground_trut
 # The frames as image_transport's compressed plugin sends them (sensor_msgs/CompressedImage): a
 # bag that has only these is played with undistort decoding them (frame_overrides).
 COMPRESSED_FRAMES = "/camera/image_raw/compressed"
+# A replay through the tracker paces on its status, one per tracked frame: every frame is then
+# tracked, as by `uav-landing evaluate`. Paced on undistort's output (bag_player.yaml), a tracker
+# slower than the rest skipped frames: 22-28 of 60 here.
+TRACKER_ACK = (("ack_topic", "uav/tracker_status"), ("ack_type", "uav_landing_msgs/msg/TrackerStatus"))
 _CLEAN_EXIT = (0, -signal.SIGINT, 128 + signal.SIGINT)
 _POLL_S = 0.1
 STACK_DUMP_S = 1.0  # a hung node's time to print its stacks (SIGUSR1) before SIGKILL
@@ -125,9 +129,12 @@ def replay_overrides(names, bag, ready_topics=None) -> dict:
     publishes ``/clock``, every other node runs on that clock (as with ``ros2 bag play --clock``: a
     replayed pose is then not stale); given ``ready_topics`` (e.g. :func:`replay_ready_topics`),
     the player first waits for those links, or the first frames (and their ground truth, which
-    the evaluator then never counts) are lost to the nodes still starting."""
+    the evaluator then never counts) are lost to the nodes still starting. With the tracker in
+    the graph, a paced player waits for its status (:data:`TRACKER_ACK`)."""
     overrides = {n: [] if n == PLAYER else [("use_sim_time", "true")] for n in names}
     overrides[PLAYER] += [("bag", str(Path(bag).resolve())), ("clock", "true")]
+    if "tracker" in names:
+        overrides[PLAYER] += list(TRACKER_ACK)
     if ready_topics is not None:
         overrides[PLAYER].append(("ready_topics", ready_topics_parameter(ready_topics)))
     return overrides
