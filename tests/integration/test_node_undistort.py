@@ -167,6 +167,22 @@ def test_a_new_calibration_replaces_the_old_one(ros):
     np.testing.assert_array_equal(image_to_numpy(rect), _expected(other, pixels))
 
 
+@pytest.mark.parametrize("model, d", [("equidistant", [-0.05, 0.01, -0.002, 0.0005]),
+                                      ("rational_polynomial", [0.12, -0.05, 0.001, -0.002, 0.01, 0.35, -0.02, 0.004])])
+def test_a_fisheye_or_rational_lens_is_rectified_by_its_own_model(ros, model, d):
+    """camera_info's other distortion models (a wide-angle deck camera is often calibrated as a
+    fisheye): rectified with the model the driver names, as cv2.fisheye / cv2 do."""
+    rig = Rig(ros)
+    lens = type(SMALL_CAMERA)(SMALL_CAMERA.width, SMALL_CAMERA.height, SMALL_CAMERA.K, d, distortion_model=model)
+    rig.send_info(lens)
+    pixels = rgb_frame(lens, 8)
+    rect = rig.send_image(image_msg(pixels, "rgb8"))
+    np.testing.assert_array_equal(image_to_numpy(rect), cv2.remap(pixels, *lens.undistortion_maps(), cv2.INTER_LINEAR))
+    info = rig.rect_info[-1]
+    assert info.distortion_model == "plumb_bob" and list(info.d) == [0.0] * 5  # the rectified image has none
+    assert rig.node.counters["dropped"] == 0
+
+
 def test_best_effort_camera_driver_with_camera_qos_sensor_data(ros):
     rig = Rig(ros, input_qos=SENSOR_QOS, parameter_overrides=[Parameter("camera_qos", value="sensor_data")])
     rig.send_info(SMALL_CAMERA)

@@ -28,10 +28,18 @@ GENERAL = CameraModel(640, 480, [[800.0, 0.0, 330.0], [0.0, 760.0, 250.0], [0.0,
                       [-0.25, 0.1, 0.001, -0.002, -0.03])
 
 
-@pytest.fixture(scope="module", params=["shipped", "general"])
+# The other lens models of sensor_msgs/CameraInfo: a rational radial factor, and a fisheye lens of
+# ~77 deg across (equidistant).
+RATIONAL = CameraModel(640, 480, GENERAL.K, [0.12, -0.05, 0.001, -0.002, 0.01, 0.35, -0.02, 0.004],
+                       distortion_model="rational_polynomial")
+FISHEYE = CameraModel(640, 480, [[400.0, 0.0, 322.0], [0.0, 402.0, 236.0], [0.0, 0.0, 1.0]],
+                      [-0.05, 0.01, -0.002, 0.0005], distortion_model="equidistant")
+
+
+@pytest.fixture(scope="module", params=["shipped", "general", "rational", "fisheye"])
 def camera(request, shipped):
-    """The shipped calibration and :data:`GENERAL`."""
-    return shipped if request.param == "shipped" else GENERAL
+    """The shipped calibration, :data:`GENERAL`, :data:`RATIONAL` and :data:`FISHEYE`."""
+    return {"shipped": shipped, "general": GENERAL, "rational": RATIONAL, "fisheye": FISHEYE}[request.param]
 
 
 @pytest.fixture
@@ -51,7 +59,10 @@ def test_default_calibration(shipped):
 
 
 def test_project_matches_cv2_project_points(camera, points):
-    expected, _ = cv2.projectPoints(points, np.zeros(3), np.zeros(3), camera.K, camera.dist)
+    if camera.distortion_model == "equidistant":
+        expected, _ = cv2.fisheye.projectPoints(points.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), camera.K, camera.dist)
+    else:
+        expected, _ = cv2.projectPoints(points, np.zeros(3), np.zeros(3), camera.K, camera.dist)
     np.testing.assert_allclose(camera.project(points), expected.reshape(-1, 2), atol=1e-9)
     expected0, _ = cv2.projectPoints(points, np.zeros(3), np.zeros(3), camera.K, np.zeros(5))
     np.testing.assert_allclose(camera.project_pinhole(points), expected0.reshape(-1, 2), atol=1e-9)
@@ -72,7 +83,10 @@ def test_undistortion_maps_match_cv2_undistort(camera):
     raw = cv2.GaussianBlur(rng.integers(0, 255, (camera.height, camera.width, 3), dtype=np.uint8), (9, 9), 3)
     map1, map2 = camera.undistortion_maps()
     ours = cv2.remap(raw, map1, map2, cv2.INTER_LINEAR)
-    expected = cv2.undistort(raw, camera.K, camera.dist)
+    if camera.distortion_model == "equidistant":
+        expected = cv2.fisheye.undistortImage(raw, camera.K, camera.dist, Knew=camera.K)
+    else:
+        expected = cv2.undistort(raw, camera.K, camera.dist)
     inner = (slice(40, -40), slice(60, -60))  # borders differ only by the fill of unmapped pixels
     diff = np.abs(ours[inner].astype(int) - expected[inner].astype(int))
     assert np.percentile(diff, 99) <= 2
@@ -98,6 +112,7 @@ def test_yaml_round_trip(camera, tmp_path):
     again = load_camera_info_yaml(path)
     np.testing.assert_array_equal(again.K, camera.K)
     np.testing.assert_array_equal(again.dist, camera.dist)
+    assert again.distortion_model == camera.distortion_model
     assert (again.width, again.height) == (camera.width, camera.height)
 
 
@@ -106,6 +121,8 @@ def test_camera_info_fields_round_trip(camera):
     assert len(fields["k"]) == 9 and len(fields["p"]) == 12 and len(fields["r"]) == 9
     again = camera_from_info_fields(**{k: fields[k] for k in ("width", "height", "distortion_model", "d", "k", "r")})
     np.testing.assert_array_equal(again.K, camera.K)
+    np.testing.assert_array_equal(again.dist, camera.dist)
+    assert again.distortion_model == fields["distortion_model"] == camera.distortion_model
 
 
 _K = "image_width: 1280\nimage_height: 720\ncamera_matrix: {rows: 3, cols: 3, data: [900,0,640,0,900,360,0,0,1]}\n"
@@ -118,7 +135,7 @@ _K = "image_width: 1280\nimage_height: 720\ncamera_matrix: {rows: 3, cols: 3, da
         ("- not a mapping\n", "not a camera_info"),
         ("image_width: 1280\nimage_height: 720\nbogus: 1\n", "unknown keys"),
         (
-            "image_width: 1280\nimage_height: 720\ndistortion_model: equidistant\n"
+            "image_width: 1280\nimage_height: 720\ndistortion_model: fov\n"
             "camera_matrix: {rows: 3, cols: 3, data: [1,0,0,0,1,0,0,0,1]}\n",
             "not supported",
         ),
@@ -178,7 +195,7 @@ def test_bad_camera_info_fields():
     with pytest.raises(CameraInfoError, match="uncalibrated"):
         camera_from_info_fields(640, 480, "plumb_bob", [0] * 5, [0] * 9)
     with pytest.raises(CameraInfoError, match="not supported"):
-        camera_from_info_fields(640, 480, "rational_polynomial", [0] * 8, [500, 0, 320, 0, 500, 240, 0, 0, 1])
+        camera_from_info_fields(640, 480, "fov", [0.9], [500, 0, 320, 0, 500, 240, 0, 0, 1])
     with pytest.raises(CameraInfoError, match="1..16384 px a side"):  # no remap table or framebuffer that size
         camera_from_info_fields(2**32 - 1, 1, "plumb_bob", [0] * 5, [500, 0, 320, 0, 500, 240, 0, 0, 1])
     with pytest.raises(CameraInfoError, match=r"coefficients, got \[-0.2, nan, 0.0, 0.0, 0.0\]"):  # was "got 5"
@@ -239,6 +256,24 @@ def test_camera_is_immutable(camera):
 def test_a_matrix_that_is_not_intrinsic_is_refused(k):
     with pytest.raises(ValueError, match="not an intrinsic matrix"):
         CameraModel(640, 480, k)
+
+
+def test_each_distortion_model_takes_its_own_coefficient_count():
+    """plumb_bob 0, 4 or 5; rational_polynomial 0 or 8; equidistant 0 or 4: a D of another length
+    was calibrated for another model (ROS's camera_info, cv2.calibrateCamera's rational flag)."""
+    assert CameraModel(640, 480, GENERAL.K, [], distortion_model="equidistant").dist.tolist() == [0.0] * 4
+    assert not CameraModel(640, 480, GENERAL.K, [], distortion_model="rational_polynomial").is_distorted
+    with pytest.raises(ValueError, match="distortion must be 0 or 4 finite equidistant coefficients"):
+        CameraModel(640, 480, GENERAL.K, [0.1] * 5, distortion_model="equidistant")
+    with pytest.raises(ValueError, match="distortion must be 0 or 8 finite rational_polynomial coefficients"):
+        CameraModel(640, 480, GENERAL.K, [0.1] * 5, distortion_model="rational_polynomial")
+    with pytest.raises(ValueError, match="distortion model 'fisheye' is not one of"):
+        CameraModel(640, 480, GENERAL.K, [0.1] * 4, distortion_model="fisheye")
+    with pytest.raises(CameraInfoError, match="distortion must be 0 or 4 finite equidistant coefficients"):
+        camera_from_info_fields(640, 480, "equidistant", [0.1] * 5, GENERAL.K.ravel())
+    rectified = FISHEYE.rectified()
+    assert rectified.distortion_model == "plumb_bob" and not rectified.is_distorted
+    np.testing.assert_array_equal(rectified.K, FISHEYE.K)
 
 
 def test_four_distortion_coefficients_mean_k3_zero():

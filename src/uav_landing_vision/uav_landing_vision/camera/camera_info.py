@@ -11,9 +11,8 @@ import numpy as np
 import yaml
 
 from ..config import UniqueKeyLoader
-from .model import DEFAULT_FRAME_ID, CameraModel
+from .model import DEFAULT_FRAME_ID, DISTORTION_MODELS, CameraModel
 
-SUPPORTED_DISTORTION = "plumb_bob"
 _YAML_KEYS = {
     "image_width", "image_height", "camera_name", "camera_matrix", "distortion_model",
     "distortion_coefficients", "rectification_matrix", "projection_matrix",
@@ -24,14 +23,17 @@ class CameraInfoError(ValueError):
     """A camera calibration (file or message) that cannot describe this camera."""
 
 
-def _check_distortion_model(model, d: np.ndarray) -> None:
-    """Refuse a distortion model other than plumb_bob, and non-zero coefficients with no model
-    (``""``) to say how to read them: four are also an equidistant (fisheye) lens's."""
+def _distortion_model(model, d: np.ndarray) -> str:
+    """The model to read ``d`` with: one of :data:`DISTORTION_MODELS`, or ``""`` (none given)
+    with all-zero coefficients, read as ``plumb_bob``. Non-zero coefficients with no model are
+    refused: four could be plumb_bob's or an equidistant (fisheye) lens's."""
+    supported = ", ".join(DISTORTION_MODELS)
     if model == "" and np.any(d != 0):
         raise CameraInfoError(f"{np.count_nonzero(d)} non-zero distortion coefficients but no distortion_model "
-                              f"to say how to read them; set it (only {SUPPORTED_DISTORTION} is supported)")
-    if model not in (SUPPORTED_DISTORTION, ""):
-        raise CameraInfoError(f"distortion model '{model}' is not supported (only {SUPPORTED_DISTORTION})")
+                              f"to say how to read them; set it ({supported})")
+    if model not in (*DISTORTION_MODELS, ""):
+        raise CameraInfoError(f"distortion model '{model}' is not supported ({supported})")
+    return model or "plumb_bob"
 
 
 def _matrix(doc: dict, key: str, rows: int, cols: int, source: str) -> np.ndarray:
@@ -82,7 +84,7 @@ def load_camera_info_yaml(path, frame_id: str = DEFAULT_FRAME_ID) -> CameraModel
         raise CameraInfoError(f"{path}: 'distortion_coefficients' must be a mapping with rows, cols and data")
     dist = _numbers(dist_entry["data"], "distortion_coefficients", str(path))
     try:
-        _check_distortion_model(doc.get("distortion_model", SUPPORTED_DISTORTION), dist)
+        model = _distortion_model(doc.get("distortion_model", "plumb_bob"), dist)
     except CameraInfoError as exc:
         raise CameraInfoError(f"{path}: {exc}") from exc
     if "rectification_matrix" in doc:
@@ -93,7 +95,7 @@ def load_camera_info_yaml(path, frame_id: str = DEFAULT_FRAME_ID) -> CameraModel
         _matrix(doc, "projection_matrix", 3, 4, str(path))  # unused (rectification keeps K), but well-formed
     width, height = _pixels(doc, "image_width", str(path)), _pixels(doc, "image_height", str(path))
     try:
-        return CameraModel(width, height, K, dist, frame_id)
+        return CameraModel(width, height, K, dist, frame_id, model)
     except ValueError as exc:
         raise CameraInfoError(f"{path}: {exc}") from exc
 
@@ -111,7 +113,7 @@ def save_camera_info_yaml(camera: CameraModel, path, camera_name: str = "deck_ca
         "camera_name": camera_name,
         "camera_matrix": block(3, 3, fields["k"]),
         "distortion_model": fields["distortion_model"],
-        "distortion_coefficients": block(1, 5, fields["d"]),
+        "distortion_coefficients": block(1, len(fields["d"]), fields["d"]),
         "rectification_matrix": block(3, 3, fields["r"]),
         "projection_matrix": block(3, 4, fields["p"]),
     }
@@ -124,7 +126,7 @@ def camera_info_fields(camera: CameraModel) -> dict:
     return {
         "width": camera.width,
         "height": camera.height,
-        "distortion_model": SUPPORTED_DISTORTION,
+        "distortion_model": camera.distortion_model,
         "d": camera.dist.tolist(),
         "k": camera.K.ravel().tolist(),
         "r": np.eye(3).ravel().tolist(),
@@ -151,13 +153,13 @@ def camera_from_info_fields(
     width, height, distortion_model, d, k, r=None, frame_id: str = DEFAULT_FRAME_ID
 ) -> CameraModel:
     """Validate ``sensor_msgs/CameraInfo`` fields and build the camera; :class:`CameraInfoError` if unusable."""
-    _check_distortion_model(distortion_model, np.asarray(d, dtype=float))
+    model = _distortion_model(distortion_model, np.asarray(d, dtype=float))
     k = np.asarray(k, dtype=float)
     if k.size != 9 or not np.any(k):
         raise CameraInfoError("camera_info K is missing (all zeros means an uncalibrated camera)")
     if r is not None and np.any(r) and not np.allclose(np.asarray(r, dtype=float).reshape(3, 3), np.eye(3)):
         raise CameraInfoError("camera_info R must be identity (monocular camera)")
     try:
-        return CameraModel(int(width), int(height), k.reshape(3, 3), np.asarray(d, dtype=float), frame_id)
+        return CameraModel(int(width), int(height), k.reshape(3, 3), np.asarray(d, dtype=float), frame_id, model)
     except ValueError as exc:
         raise CameraInfoError(str(exc)) from exc

@@ -82,7 +82,7 @@ class Undistort(LandingNode):
         self._rect_info = camera_info_fields(camera.rectified())
         self.get_logger().info(
             f"calibration {camera.width}x{camera.height}, fx={camera.fx:.1f} fy={camera.fy:.1f}, "
-            f"distortion {camera.dist.tolist()}: remap tables built"
+            f"{camera.distortion_model} distortion {camera.dist.tolist()}: remap tables built"
         )
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
