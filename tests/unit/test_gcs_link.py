@@ -237,6 +237,45 @@ def test_udpin_stops_answering_a_gcs_that_has_gone_silent(monkeypatch):
     assert bridge.link_stats.restored == 1
 
 
+def test_udpout_tells_whether_anybody_listens_and_sends_all_the_same():
+    """``udpout`` could not tell whether anyone listened: its link said up with the GCS's port
+    closed. From a socket connected to the GCS, the kernel's "port unreachable" says so (the link
+    is down, with why); frames still go out, so a GCS that comes up gets them at once, starting
+    with the heartbeat and the stage."""
+    port = free_port(socket.SOCK_DGRAM)
+    bridge = make_bridge(f"udpout:127.0.0.1:{port}")
+    flight = Flight(bridge)
+    flight.run(0.5)
+    stats = bridge.link_stats
+    assert not stats.up and stats.last_error == f"nobody listens at 127.0.0.1:{port} (port unreachable)"
+    assert stats.written > 0 and stats.dropped == 0  # nothing held back
+    gcs = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    gcs.bind(("127.0.0.1", port))
+    gcs.setblocking(False)
+    got = []
+
+    def pump():
+        while True:
+            try:
+                got.append(gcs.recv(65536))
+            except BlockingIOError:
+                return
+
+    flight.pump = pump
+    flight.run(0.5)
+    # Up again: the heartbeat and the stage first, as after an outage (the stage changed unheard).
+    heard = [m for data in got for m in parse(data)]
+    assert bridge.link_stats.up and {m.get_type() for m in heard} >= {"HEARTBEAT", "ODOMETRY"}
+    assert_announced_once(heard)
+    flight.pump = lambda: None
+    gcs.close()
+    flight.run(0.5)
+    assert not bridge.link_stats.up and "nobody listens" in bridge.link_stats.last_error
+    bridge.close()
+    assert bridge.link_stats.dropped == 0
+    flight.assert_landing_went_on()
+
+
 @pytest.mark.parametrize("reset", [False, True], ids=["closed", "reset"])
 def test_a_tcp_gcs_that_goes_away_and_comes_back(capfd, reset):
     """pymavlink printed a line per frame once the GCS had gone (stdout, not the node's log) and

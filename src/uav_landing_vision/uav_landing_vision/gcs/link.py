@@ -2,7 +2,10 @@
 
 ``mavlink.connection`` is one of:
 
-- ``udpout:HOST:PORT``: datagrams to the GCS;
+- ``udpout:HOST:PORT``: datagrams to the GCS, from a socket connected to it, so that the kernel
+  reports an ICMP "port unreachable" (nobody listens there: the link is then down until the GCS
+  is heard) and only the GCS's own datagrams are read. Frames go out all the same: a GCS may
+  start at any time, and one behind a firewall is never heard;
 - ``udpin:HOST:PORT``: listen there and answer every address a datagram came from within the
   last ``PEER_SILENCE_S`` (a GCS sends its heartbeat every second), so nothing can be sent
   before the GCS's first packet, and a GCS gone or moved to another port is no longer answered;
@@ -147,21 +150,36 @@ class DatagramLink(Link):
             self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
             self._sock.bind(address)
         self._peers = {} if listen else {address: None}  # address -> monotonic time last heard (udpin)
+        self._refused = False  # udpout: the last frames met "port unreachable", and the GCS was not heard since
+        self._unconfirmed = False  # udpout: a frame went out since the last poll
+        self._connected = listen
 
     @property
     def up(self) -> bool:
-        return bool(self._peers) and not self._outage
+        return bool(self._peers) and not self._outage and not self._refused
 
     def _send(self, frame: bytes) -> bool:
         if not self._peers:
             self._last_error = f"no GCS heard within {PEER_SILENCE_S:g} s: nowhere to send"  # udpin only
             return False
-        for peer in self._peers:
-            self._sock.sendto(frame, peer)
+        if self._listen:
+            for peer in self._peers:
+                self._sock.sendto(frame, peer)
+            return True
+        if not self._connected:  # at start-up, or while there is no route to the GCS
+            self._sock.connect(next(iter(self._peers)))
+            self._connected = True
+        try:
+            self._sock.send(frame)
+        except ConnectionRefusedError:  # an earlier frame's port unreachable; this one still goes out
+            self._not_listening()
+            self._sock.send(frame)
+        self._unconfirmed = True
         return True
 
     def _poll(self) -> None:
         if not self._listen:
+            self._poll_gcs()
             return
         now = time.monotonic()
         for _ in range(READS_PER_POLL):
@@ -171,6 +189,33 @@ class DatagramLink(Link):
                 break
             self._peers[peer] = now
         self._peers = {peer: heard for peer, heard in self._peers.items() if now - heard < PEER_SILENCE_S}
+
+    def _poll_gcs(self) -> None:
+        """udpout: read what the GCS sent back. A port unreachable says nobody listens; frames
+        sent since the last poll without one (the kernel has it within a tick on a LAN), or a
+        datagram from the GCS, say somebody does again."""
+        if not self._connected:
+            return
+        refused = heard = False
+        for _ in range(READS_PER_POLL):
+            try:
+                self._sock.recv(READ_SIZE)
+            except BlockingIOError:
+                break
+            except ConnectionRefusedError:
+                refused = True
+            else:
+                heard = True
+        if refused and not heard:
+            self._not_listening()
+        elif self._refused and (heard or self._unconfirmed):  # what went out in between was lost: as after an outage
+            self._refused, self._back = False, True
+        self._unconfirmed = False
+
+    def _not_listening(self) -> None:
+        host, port = next(iter(self._peers))
+        self._refused = True
+        self._last_error = f"nobody listens at {host}:{port} (port unreachable)"
 
     def close(self) -> None:
         self._sock.close()

@@ -41,6 +41,7 @@ class GcsBridgeNode(LandingNode):
         super().__init__("gcs_bridge", **kwargs)
         self.config = self.load_config(GcsBridgeConfig)
         self._pose_stamps = {}  # float seconds the core knows a pose by -> its header stamp, the last few
+        self._link_up = True  # as last reported: its going down is logged once, with why
         try:
             self._bridge = GcsBridge(self.config)
         except (OSError, ValueError) as exc:
@@ -127,10 +128,18 @@ class GcsBridgeNode(LandingNode):
 
     def _report_link(self) -> None:
         """The link's counters (``mavlink_*``) on /diagnostics; frames it could not send count as
-        dropped, with the link's error (WARN on /diagnostics, logged at most once a second)."""
+        dropped, with the link's error (WARN on /diagnostics, logged at most once a second). The
+        link going down (e.g. nobody listens at a udpout address: frames still go out) and coming
+        back are logged once each."""
         link = self._bridge.link_stats
         connection = self.config.mavlink.connection
         lost = link.dropped - self.counters["mavlink_dropped"]
+        if link.up != self._link_up:
+            if link.up:
+                self.get_logger().info(f"MAVLink to '{connection}' is up")
+            else:
+                self.get_logger().warning(f"MAVLink to '{connection}' is down: {link.last_error}")
+            self._link_up = link.up
         if link.restored > self.counters["mavlink_restored"]:
             self.get_logger().warning(f"MAVLink to '{connection}' sends again")
         for key in ("written", "dropped", "failures", "restored"):
