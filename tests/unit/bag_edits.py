@@ -19,3 +19,17 @@ def record_frame_twice(bag: Path, out: Path, frame: int = 1) -> list[int]:
             if t_ns == stamps[frame]:
                 writer.write(conns[conn.id], t_ns + 1, raw)
     return stamps
+
+
+def rename_topics(bag: Path, out: Path, names: dict) -> None:
+    """``bag`` copied to ``out`` with its topics renamed by ``names`` ``{old: new}``, as a recording
+    made with another camera driver's topic names."""
+    from rosbags.rosbag2 import Reader, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    with Reader(bag) as reader, Writer(out, version=9) as writer:
+        typestore = get_typestore(Stores.ROS2_JAZZY)
+        conns = {c.id: writer.add_connection(names.get(c.topic, c.topic), c.msgtype, typestore=typestore)
+                 for c in reader.connections}
+        for conn, t_ns, raw in reader.messages():
+            writer.write(conns[conn.id], t_ns, raw)

@@ -1,10 +1,10 @@
 """eval-detector: its arguments are checked before any frame is read; Fig. 4.4 near ties are
 counted; an operating threshold below the curve's floor sees its boxes; a frame recorded twice is
-refused."""
+refused; a recording of other topic names is read with ``--remap``."""
 
 import numpy as np
 import pytest
-from bag_edits import record_frame_twice
+from bag_edits import record_frame_twice, rename_topics
 
 from uav_landing_vision.detection.detector import DetectorConfig
 from uav_landing_vision.detection.evaluation import evaluate_bag, label_frame, match_frame, summarise
@@ -181,3 +181,24 @@ def test_a_frame_recorded_twice_is_refused_naming_the_bag(tmp_path):
         evaluate_bag(tmp_path / "repeated", DetectorConfig(), tmp_path / "out.json", progress=False)
     assert str(refused.value) == (f"{tmp_path / 'repeated'}: frame 2 is stamped {stamps[1]} ns, not after frame 1 "
                                   f"({stamps[1]} ns): a recording's frames must have increasing header stamps")
+
+
+def test_a_recording_of_other_topic_names_is_read_with_remap(tmp_path, capsys):
+    """As ``uav-landing graph --remap``: the shipped detector scores it as under the graph's names."""
+    import json
+
+    from uav_landing_vision.cli import main
+    from uav_landing_vision.sim import load_scenario, simulate
+
+    simulate(load_scenario("normal"), tmp_path / "bag", frames=2, progress=False)
+    names = {"/camera/image_raw": "/deck_cam/image_raw", "/camera/camera_info": "/deck_cam/camera_info",
+             "/uav/ground_truth": "/rtk/uav_pose"}
+    rename_topics(tmp_path / "bag", tmp_path / "renamed", names)
+    with pytest.raises(SystemExit, match="no topic /camera/camera_info; has .*/deck_cam/camera_info"):
+        main(["eval-detector", "--bag", str(tmp_path / "renamed"), "--json", str(tmp_path / "r.json")])
+    remaps = [a for old, new in names.items() for a in ("--remap", f"{new}:={old}")]
+    assert main(["eval-detector", "--bag", str(tmp_path / "renamed"), *remaps, "--json", str(tmp_path / "r.json")]) == 0
+    assert main(["eval-detector", "--bag", str(tmp_path / "bag"), "--json", str(tmp_path / "p.json")]) == 0
+    renamed, plain = (json.loads((tmp_path / f"{n}.json").read_text()) for n in ("r", "p"))
+    assert {k: v for k, v in renamed.items() if k not in ("ms_per_frame", "bag")} == {
+        k: v for k, v in plain.items() if k not in ("ms_per_frame", "bag")}

@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 import pytest
 import yaml
-from bag_edits import record_frame_twice
+from bag_edits import record_frame_twice, rename_topics
 from scipy.spatial.transform import Rotation
 
 from uav_landing_vision import resources
@@ -188,6 +188,27 @@ def test_cli_writes_json_and_plots(bag, tmp_path, capsys):
     assert "roi_source=oracle" in json.loads(out.read_text())["sequence"]
     assert (tmp_path / "plots" / "rotation_error.png").is_file()
     assert "roi_source=oracle" in capsys.readouterr().out
+
+
+DECK_CAM = {"/camera/image_raw": "/deck_cam/image_raw", "/camera/camera_info": "/deck_cam/camera_info",
+            "/uav/ground_truth": "/rtk/uav_pose"}
+
+
+def test_a_recording_of_other_topic_names_is_read_with_remap(bag, tmp_path, capsys):
+    """As ``uav-landing graph --remap``: the same figures as the bag under the graph's names."""
+    renamed = tmp_path / "deck_cam"
+    rename_topics(bag, renamed, DECK_CAM)
+    args = ["--roi-source", "oracle", "--frames", "3", "--variants", "C3N1", "--particles", "30"]
+    with pytest.raises(SystemExit, match="no topic /camera/camera_info; has .*/deck_cam/camera_info"):
+        main(["evaluate", "--bag", str(renamed), *args])
+    remaps = [a for old, new in DECK_CAM.items() for a in ("--remap", f"{new}:={old}")]
+    assert main(["evaluate", "--bag", str(renamed), *remaps, *args, "--json", str(tmp_path / "renamed.json")]) == 0
+    assert main(["evaluate", "--bag", str(bag), *args, "--json", str(tmp_path / "plain.json")]) == 0
+    figures = [{k: v for k, v in load_summary(tmp_path / f"{name}.json")["variants"]["C3N1"].items() if k != "ms_per_frame"}
+               for name in ("renamed", "plain")]
+    assert figures[0] == figures[1]
+    with pytest.raises(SystemExit, match="--remap '/deck_cam/image_raw': expected FROM:=TO"):
+        main(["evaluate", "--bag", str(renamed), "--remap", "/deck_cam/image_raw", *args])
 
 
 def test_cli_refuses_a_renderer_that_fails_the_self_test(bag, capsys, shift_rasterisation):

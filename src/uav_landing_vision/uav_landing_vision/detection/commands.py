@@ -86,6 +86,9 @@ def register(sub) -> None:
     p.add_argument("--truth-box", choices=("oriented", "extent"), default="oriented",
                    help="ground-truth ROI: the ROI of the model's oriented box, as the training labels "
                         "(Fig. 4.4), or the extent of the projected model")
+    p.add_argument("--remap", action="append", default=[], metavar="FROM:=TO",
+                   help="a recording of other topic names (repeatable), as uav-landing graph --remap: e.g. "
+                        "/deck_cam/image_raw:=/camera/image_raw")
     p.set_defaults(func=_evaluate)
 
 
@@ -167,6 +170,7 @@ def _train_verifier(args) -> int:
 
 
 def _evaluate(args) -> int:
+    from ..graph import parse_remaps
     from .detector import DetectorConfig
     from .evaluation import evaluate_bag
 
@@ -175,7 +179,7 @@ def _evaluate(args) -> int:
         cfg = DetectorConfig(model=args.model, verifier=verifier, verifier_threshold=args.verifier_threshold,
                              score_threshold=args.threshold, threads=args.threads)
         png = args.png or args.json.with_suffix(".png")
-        r = evaluate_bag(args.bag, cfg, args.json, png, truth_box=args.truth_box)
+        r = evaluate_bag(args.bag, cfg, args.json, png, truth_box=args.truth_box, remaps=parse_remaps(args.remap))
     except (ValueError, OSError) as exc:  # a bag that cannot be read or lacks a topic, a missing model
         raise SystemExit(f"uav-landing eval-detector: {exc}") from None
     print(f"AP50 {r['ap50']:.3f}  precision {r['precision']:.3f}  recall {r['recall']:.3f} at {r['threshold']}  "

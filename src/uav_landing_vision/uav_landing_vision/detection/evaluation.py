@@ -137,33 +137,36 @@ def plot_pr(result: dict, path, title: str) -> None:
     plt.close(fig)
 
 
-def evaluate_bag(bag, config, json_path, png_path=None, progress: bool = True, truth_box: str = "oriented") -> dict:
+def evaluate_bag(bag, config, json_path, png_path=None, progress: bool = True, truth_box: str = "oriented",
+                 remaps=None) -> dict:
     """Run the detector (``config``: :class:`.detector.DetectorConfig`, its threshold the operating
     point) over a simulated bag; write the metrics JSON (and PR curve PNG).
 
     ``truth_box``: ``oriented`` labels the truth as the training data are (Fig. 4.4);
-    ``extent`` takes the extent of the projected model instead (:func:`.dataset.model_roi`)."""
+    ``extent`` takes the extent of the projected model instead (:func:`.dataset.model_roi`).
+    ``remaps`` ``{recorded: name}``: a recording of other topic names (:func:`..sim.bag.recorded_topics`)."""
     from dataclasses import replace
 
     from tqdm import tqdm
 
     from ..model import fixed_wing_mesh
-    from ..sim.bag import increasing_frames, read_camera, read_poses
+    from ..sim.bag import increasing_frames, read_camera, read_poses, recorded_topics
     from .detector import Detector
 
     if truth_box not in LABEL_BOXES:
         raise ValueError(f"truth_box must be one of {LABEL_BOXES}, got {truth_box!r}")
-    camera = read_camera(bag)
+    image_topic, info_topic, truth_topic = recorded_topics(remaps)
+    camera = read_camera(bag, info_topic)
     rect = camera.rectified()
     map1, map2 = camera.undistortion_maps()
-    poses = read_poses(bag)
+    poses = read_poses(bag, truth_topic)
     truth = {int(s): (q, t) for s, q, t in zip(poses.stamps_ns, poses.quat, poses.trans)}
     mesh = fixed_wing_mesh("high")
     # scored down to 0.01 for the curve, or to the operating threshold when that is lower
     detector = Detector(replace(config, score_threshold=min(0.01, config.score_threshold), max_detections=20))
     timed = Detector(config)  # the operating point and ms per frame: as configured (threshold, limit, verifier)
     frames = []
-    for stamp, raw in tqdm(increasing_frames(bag), desc="eval-detector", unit="frame", total=len(truth),
+    for stamp, raw in tqdm(increasing_frames(bag, image_topic), desc="eval-detector", unit="frame", total=len(truth),
                            disable=not progress):
         if stamp not in truth:
             raise ValueError(f"{bag}: frame {stamp} has no ground-truth pose")

@@ -177,6 +177,14 @@ def _topic_messages(path, topic: str, types: tuple[str, ...]):
         raise ValueError(f"cannot read {what} of bag {path}: {exc}") from exc
 
 
+def recorded_topics(remaps=None) -> tuple[str, str, str]:
+    """The bag topics of the frames, their camera_info and the ground truth: :data:`IMAGE_TOPIC`,
+    :data:`INFO_TOPIC` and :data:`TRUTH_TOPIC`, or what the topic ``remaps`` ``{recorded: name}``
+    (``uav-landing graph --remap FROM:=TO``) play under those names."""
+    recorded = {name: source for source, name in (remaps or {}).items()}
+    return tuple(recorded.get(name, name) for name in (IMAGE_TOPIC, INFO_TOPIC, TRUTH_TOPIC))
+
+
 def iter_images(path, topic: str = IMAGE_TOPIC):
     """RGB frames of an image topic of a bag (empty topic: the first Image/CompressedImage topic;
     :data:`IMAGE_TOPIC`: :data:`COMPRESSED_IMAGE_TOPIC` in a bag that has only that)."""

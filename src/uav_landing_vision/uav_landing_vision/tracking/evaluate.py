@@ -98,12 +98,14 @@ class EvaluationResult:
 
 def evaluate_bag(bag, variants, *, particles: int | None = None, metric: str | None = None,
                  roi_source: str = "detector", frames: int | None = None, start: int = 0, seed: int = 0,
-                 base: TrackerConfig | None = None, stride: int = 1, progress: bool = True) -> EvaluationResult:
+                 base: TrackerConfig | None = None, stride: int = 1, progress: bool = True,
+                 remaps=None) -> EvaluationResult:
     """Run ``variants`` (``CxNy`` names) over the simulated ``bag``; see the module docstring.
     ``start``: frames skipped first (the trackers start fresh there); ``frames``: how many follow
     (default: the rest), of which every ``stride``-th is tracked. Tracker settings other than
     variant, N and seed come from ``base`` (default: :class:`TrackerConfig`'s), M and the metric
-    too unless given."""
+    too unless given. ``remaps`` ``{recorded: name}``: a recording of other topic names
+    (:func:`..sim.bag.recorded_topics`)."""
     from ..boosting import HypothesisConfig, PoseHypothesisGenerator
     from ..detection.track_box import TrackBox, TrackBoxConfig
     from ..evaluation import pose_errors
@@ -111,15 +113,16 @@ def evaluate_bag(bag, variants, *, particles: int | None = None, metric: str | N
     from ..render import Renderer
     from ..render.boxes import projected_roi
     from ..sim import read_camera, read_poses
-    from ..sim.bag import increasing_frames
+    from ..sim.bag import increasing_frames, recorded_topics
 
     if roi_source not in ROI_SOURCES:
         raise EvaluationError(f"roi source must be one of {ROI_SOURCES}, got {roi_source!r}")
     names = parse_variants(",".join(variants))
     bag = Path(bag)
-    raw_camera = read_camera(bag)
+    image_topic, info_topic, truth_topic = recorded_topics(remaps)
+    raw_camera = read_camera(bag, info_topic)
     camera = raw_camera.rectified()
-    truth = read_poses(bag)
+    truth = read_poses(bag, truth_topic)
     if start < 0:
         raise EvaluationError(f"start must be non-negative, got {start}")
     if isinstance(stride, bool) or int(stride) != stride or stride < 1:
@@ -152,7 +155,7 @@ def evaluate_bag(bag, variants, *, particles: int | None = None, metric: str | N
         ms = {n: {s: 0.0 for s in SHARED_STAGES + STAGES} for n in names}
         gt_t, gt_q = np.full((count, 3), np.nan), np.full((count, 4), np.nan)
         done = 0
-        for k, (stamp, raw) in enumerate(_frames(increasing_frames(bag), start, count, stride, progress)):
+        for k, (stamp, raw) in enumerate(_frames(increasing_frames(bag, image_topic), start, count, stride, progress)):
             clock = time.perf_counter()
             frame = cv2.remap(raw, maps[0], maps[1], cv2.INTER_LINEAR)
             t_undistort = time.perf_counter()

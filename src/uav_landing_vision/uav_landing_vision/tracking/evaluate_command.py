@@ -28,6 +28,9 @@ def register(sub) -> None:
     p.add_argument("--config", type=Path, help="tracker parameter file (default: the shipped config/tracker.yaml)")
     p.add_argument("--json", type=Path, help="write the JSON summary here")
     p.add_argument("--plots", type=Path, help="write tables (txt, CSV) and error plots into this folder")
+    p.add_argument("--remap", action="append", default=[], metavar="FROM:=TO",
+                   help="a recording of other topic names (repeatable), as uav-landing graph --remap: e.g. "
+                        "/deck_cam/image_raw:=/camera/image_raw")
     p.set_defaults(func=_run)
 
 
@@ -35,6 +38,7 @@ def _run(args) -> int:
     from ..cli import check_output
     from ..config import ConfigError
     from ..evaluation import save_summary, write_report
+    from ..graph import parse_remaps
     from ..render.selftest import check_renderer
     from .evaluate import EvaluationError, evaluate_bag, format_results, parse_variants, sequence_label, summary
     from .upf import load_tracker_config
@@ -53,13 +57,14 @@ def _run(args) -> int:
             check_output("--json", args.json)
         if args.plots:
             check_output("--plots", args.plots, folder=True)
+        remaps = parse_remaps(args.remap)
         base = load_tracker_config(args.config)
         # As the tracker node does: figures from silhouettes unlike the reference's are not the tracker's
         # (RendererSelfTestError is an OSError: the CLI reports it).
         print(f"renderer self-test {check_renderer().summary}")
         result = evaluate_bag(args.bag, variants, particles=args.particles, metric=args.metric,
                               roi_source=args.roi_source, frames=args.frames, start=args.start, seed=args.seed, base=base,
-                              stride=args.stride)
+                              stride=args.stride, remaps=remaps)
     except (ValueError, ConfigError, EvaluationError, FileNotFoundError) as exc:
         raise SystemExit(f"uav-landing evaluate: {exc}") from exc
     print(format_results(result))
