@@ -123,7 +123,7 @@ class CameraModel:
         uv = np.asarray(uv, dtype=float)
         flat = uv.reshape(-1, 1, 2)
         if self._fisheye:
-            out = cv2.fisheye.undistortPoints(flat, self.K, self.dist, R=np.eye(3), P=self.K, criteria=_CRITERIA)
+            out = cv2.fisheye.undistortPoints(flat, self.K, self.dist, R=np.eye(3), P=self.K)
         elif hasattr(cv2, "undistortPointsIter"):  # OpenCV 4 (Ubuntu 24.04's python3-opencv is 4.6)
             out = cv2.undistortPointsIter(flat, self.K, self.dist, None, self.K, _CRITERIA)
         else:  # OpenCV 5 takes the criteria in undistortPoints itself
