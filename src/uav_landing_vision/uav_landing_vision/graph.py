@@ -91,29 +91,35 @@ def _ready_topics(recorded: set[str], remaps=None) -> tuple[str, ...]:
     remaps = remaps or {}
     played = {remaps.get(t, t) for t in recorded}
     topics = tuple(t for t in PIPELINE_TOPICS if t not in RECORDED_TOPICS or remaps.get(t, t) in played)
-    return (COMPRESSED_FRAMES, *topics) if _compressed_frames(recorded, remaps) else topics
+    return (COMPRESSED_FRAMES, *topics) if _compressed_frames(played, remaps) else topics
 
 
-def _compressed_frames(recorded: set[str], remaps=None) -> bool:
-    """Whether a bag with the topics ``recorded`` plays its frames only as compressed ones
-    (:data:`COMPRESSED_FRAMES` and no ``/camera/image_raw``, after the topic ``remaps``)."""
-    remaps = remaps or {}
-    played = {remaps.get(t, t) for t in recorded}
+def _compressed_frames(played: set[str], remaps: dict) -> bool:
+    """Whether the topics a bag ``played`` (its recorded ones through the ``remaps``) carry its
+    frames only as compressed ones: :data:`COMPRESSED_FRAMES` and no ``/camera/image_raw``."""
     return remaps.get(COMPRESSED_FRAMES, COMPRESSED_FRAMES) in played and remaps.get(
         "/camera/image_raw", "/camera/image_raw") not in played
 
 
 def frame_overrides(bag, remaps=None) -> dict:
-    """``{node: [(key, value)]}`` that play ``bag`` if its frames are only compressed ones
-    (:data:`COMPRESSED_FRAMES`): ``undistort`` decodes them, the player paces on them. Empty for
-    a bag of raw frames, or one that cannot be read (bag_player reports that at start-up)."""
+    """:func:`_frame_overrides` of ``bag``; empty for one that cannot be read (bag_player reports
+    that at start-up)."""
     from .sim.bag import BagError
 
     try:
-        compressed = _compressed_frames(_recorded_topics(bag), remaps)
+        return _frame_overrides(_recorded_topics(bag), remaps)
     except BagError:
         return {}
-    return {"undistort": [("image_transport", "compressed")], PLAYER: [("pace_topic", COMPRESSED_FRAMES)]} if compressed else {}
+
+
+def _frame_overrides(recorded: set[str], remaps=None) -> dict:
+    """``{node: [(key, value)]}`` that play a bag with the topics ``recorded`` if its frames are
+    only compressed ones (:data:`COMPRESSED_FRAMES`): ``undistort`` decodes them, the player paces
+    on them. Empty for a bag of raw frames."""
+    remaps = remaps or {}
+    if not _compressed_frames({remaps.get(t, t) for t in recorded}, remaps):
+        return {}
+    return {"undistort": [("image_transport", "compressed")], PLAYER: [("pace_topic", COMPRESSED_FRAMES)]}
 
 
 def _recorded_topics(bag) -> set[str]:
@@ -235,7 +241,7 @@ def _plan(args, remaps=None) -> tuple[list[str], dict]:
     else:  # the whole graph waits for its links unless told which
         told = any(i.startswith(f"{PLAYER}:ready_topics=") for i in args.param)
         whole = set(names) == set(GRAPH_NODES) and not told
-        frames = frame_overrides(args.bag, remaps)
+        frames = _frame_overrides(recorded, remaps)
         ready = _ready_topics(recorded, remaps) if whole else None
         if frames and not (whole or told):  # the parameter file's inputs, the frames' topic swapped
             ready = tuple(t for t in _ready_topics(recorded, remaps) if t in (COMPRESSED_FRAMES, "/camera/camera_info"))

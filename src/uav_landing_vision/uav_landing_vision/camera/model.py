@@ -107,8 +107,7 @@ class CameraModel:
         """Lens distortion of normalised image coordinates ``(..., 2)`` by the camera's model."""
         if self._fisheye:
             return _equidistant(xy, self.dist)
-        k1, k2, p1, p2, k3, *rational = self.dist
-        return _radial_tangential(xy, k1, k2, p1, p2, k3, *(rational or (0.0, 0.0, 0.0)))
+        return _radial_tangential(xy, *self.dist)
 
     def backproject(self, uv: np.ndarray, depth: np.ndarray) -> np.ndarray:
         """Camera-frame points at ``depth`` (Z, metres) of rectified-image pixels ``uv (..., 2)``."""

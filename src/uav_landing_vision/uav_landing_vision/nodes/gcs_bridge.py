@@ -41,7 +41,6 @@ class GcsBridgeNode(LandingNode):
         super().__init__("gcs_bridge", **kwargs)
         self.config = self.load_config(GcsBridgeConfig)
         self._pose_stamps = {}  # float seconds the core knows a pose by -> its header stamp, the last few
-        self._link_up = True  # as last reported: its going down is logged once, with why
         try:
             self._bridge = GcsBridge(self.config)
         except (OSError, ValueError) as exc:
@@ -134,12 +133,11 @@ class GcsBridgeNode(LandingNode):
         link = self._bridge.link_stats
         connection = self.config.mavlink.connection
         lost = link.dropped - self.counters["mavlink_dropped"]
-        if link.up != self._link_up:
+        if link.up != bool(self.counters.get("mavlink_up", True)):  # as last reported; up until told otherwise
             if link.up:
                 self.get_logger().info(f"MAVLink to '{connection}' is up")
             else:
                 self.get_logger().warning(f"MAVLink to '{connection}' is down: {link.last_error}")
-            self._link_up = link.up
         if link.restored > self.counters["mavlink_restored"]:
             self.get_logger().warning(f"MAVLink to '{connection}' sends again")
         for key in ("written", "dropped", "failures", "restored"):
