@@ -2,8 +2,10 @@
 in-process rclpy harness and bag/image helpers the other ``test_node_*`` modules import."""
 
 import os
+import signal
 import subprocess
 import sys
+import threading
 import time
 import types
 from dataclasses import dataclass
@@ -352,6 +354,70 @@ def test_run_node_exits_0_when_a_callback_publishes_after_the_shutdown(capsys, r
     assert not rclpy.ok()
 
 
+class _InterruptedInAConversion(_Probe):
+    """Ctrl-C's KeyboardInterrupt raised while rclpy converts a message comes out of pybind11 as a
+    RuntimeError; rclpy's signal thread shuts the context down a moment later."""
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.create_timer(0.01, self._take)
+
+    def _take(self):
+        threading.Timer(0.1, self.context.shutdown).start()
+        raise RuntimeError("Unable to convert call argument '0' to Python object")
+
+
+class _FailsInACallback(_Probe):
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.create_timer(0.01, self._fail)
+
+    def _fail(self):
+        raise RuntimeError("a bug")
+
+
+def test_run_node_exits_0_when_ctrl_c_interrupts_a_message_conversion(ros_domain_id, monkeypatch):
+    """Seen stopping undistort while frames came (3 of 50 stops): exit code 1 and a traceback."""
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(ros_domain_id))
+    assert run_node(_InterruptedInAConversion, ["--ros-args"]) == 0
+
+
+def test_run_node_raises_a_callback_error_while_the_context_stays_up(ros_domain_id, monkeypatch):
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(ros_domain_id))
+    with pytest.raises(RuntimeError, match="a bug"):
+        run_node(_FailsInACallback, ["--ros-args"])
+    assert not rclpy.ok()
+
+
+CRASHES_IN_C = """
+import ctypes, sys
+from uav_landing_vision.nodes import base
+
+class CrashesInC(base.LandingNode):
+    def __init__(self, **kwargs):
+        super().__init__("crash_probe", **kwargs)
+        self.create_timer(0.01, self.read_null)
+
+    def read_null(self):
+        ctypes.string_at(0)
+
+sys.exit(base.run_node(CrashesInC, ["--ros-args"]))
+"""
+
+
+def _run_script(script: str, ros_domain_id: int) -> subprocess.CompletedProcess:
+    env = dict(os.environ, ROS_DOMAIN_ID=str(ros_domain_id),
+               PYTHONPATH=os.pathsep.join([str(Path(__file__).parents[2] / "src" / "uav_landing_vision"), os.environ.get("PYTHONPATH", "")]))
+    return subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=50)
+
+
+def test_a_node_that_crashes_in_c_prints_where(ros_domain_id):
+    """A node that died of SIGSEGV (undistort, once, stopping in CI) had said nothing."""
+    done = _run_script(CRASHES_IN_C, ros_domain_id)
+    assert done.returncode == -signal.SIGSEGV
+    assert "Segmentation fault" in done.stderr and "in read_null" in done.stderr, done.stderr
+
+
 HANGS_IN_TEARDOWN = """
 import sys, time
 from uav_landing_vision.nodes import base
@@ -374,9 +440,7 @@ sys.exit(base.run_node(HangsInTeardown, ["--ros-args"]))
 def test_a_teardown_that_hangs_ends_the_process_printing_where(ros_domain_id):
     """Seen in loaded e2e runs: the GCS bridge stuck in rclpy's destroy_node (the middleware's C++),
     deaf to SIGINT and SIGTERM, until the graph killed it."""
-    env = dict(os.environ, ROS_DOMAIN_ID=str(ros_domain_id),
-               PYTHONPATH=os.pathsep.join([str(Path(__file__).parents[2] / "src" / "uav_landing_vision"), os.environ.get("PYTHONPATH", "")]))
-    done = subprocess.run([sys.executable, "-c", HANGS_IN_TEARDOWN], env=env, capture_output=True, text=True, timeout=50)
+    done = _run_script(HANGS_IN_TEARDOWN, ros_domain_id)
     assert done.returncode == 1
     assert "Timeout" in done.stderr and "in stuck_in_teardown" in done.stderr, done.stderr
 

@@ -26,6 +26,7 @@ from .participant import ImageParticipant
 from .qos import RELIABLE_QOS
 
 DIAGNOSTICS_PERIOD_S = 1.0
+SHUTDOWN_GRACE_S = 1.0  # an error out of the executor is a stop when the context goes down this soon
 TEARDOWN_LIMIT_S = 5.0  # a node's teardown taking longer has hung: the process ends (run_node)
 DROP_LOG_PERIOD_S = 1.0  # a kind of drop is logged at most this often
 # Parameters every rclpy node declares itself; they are not part of a node's configuration.
@@ -181,6 +182,7 @@ def run_node(factory, args=None, run=None) -> int:
     it hung in the middleware's C++ (Fast DDS's participant teardown, seen in loaded e2e runs),
     where neither SIGINT nor SIGTERM reaches it.
     """
+    faulthandler.enable(file=sys.__stderr__, all_threads=True)  # a crash in C (SIGSEGV, SIGABRT) prints every stack
     faulthandler.register(signal.SIGUSR1, file=sys.__stderr__, all_threads=True)
     try:
         rclpy.init(args=args)
@@ -211,10 +213,24 @@ def run_node(factory, args=None, run=None) -> int:
 
 
 def stopped_by_shutdown(exc: BaseException, context=None) -> bool:
-    """Whether ``exc`` is how Ctrl-C / SIGTERM end a node: rclpy shuts the context down at once,
-    so a callback that publishes afterwards raises RCLError (a RuntimeError) out of the executor."""
-    return isinstance(exc, (KeyboardInterrupt, ExternalShutdownException)) or (
-        isinstance(exc, RuntimeError) and not rclpy.ok(context=context))
+    """Whether ``exc`` is how Ctrl-C / SIGTERM end a node.
+
+    rclpy's signal handler shuts the context down, so a callback that publishes afterwards raises
+    RCLError (a RuntimeError) out of the executor. It does so from its own thread, racing the
+    KeyboardInterrupt that Ctrl-C raises in the main thread: one raised while rclpy converts a
+    message comes out of pybind11 as a RuntimeError, with the context still up for a moment. So a
+    RuntimeError is a stop when the context goes down within :data:`SHUTDOWN_GRACE_S`.
+    """
+    if isinstance(exc, (KeyboardInterrupt, ExternalShutdownException)):
+        return True
+    if not isinstance(exc, RuntimeError):
+        return False
+    deadline = time.monotonic() + SHUTDOWN_GRACE_S
+    while rclpy.ok(context=context):
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.01)
+    return True
 
 
 def _cannot_start(exc: Exception) -> int:
