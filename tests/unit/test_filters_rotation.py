@@ -307,3 +307,31 @@ def test_bingham_filters_reject_a_non_finite_time_step(cls, dt):
     filt = {"UBiF": ubif.UBiF, "UBiGaF": ubigaf.UBiGaF}[cls]
     with pytest.raises(ValueError, match="dt"):
         filt(dt, (-250.0,) * 3, (-800.0,) * 3, np.full(3, 0.25))
+
+
+@pytest.mark.parametrize("depth, sigma", [(30.0, 0.5), (80.0, 0.8)])
+def test_range_fraction_is_the_kalman_filter_of_a_range_grown_measurement_noise(depth, sigma):
+    """With ``position_measurement_range_fraction`` 0.01 and σ 0.5 m, R^l is (0.5 m)² until 50 m
+    of measured depth and (0.01 · depth)² beyond."""
+    cfg = MotionFilterConfig(position_measurement_std=0.5, position_measurement_range_fraction=0.01)
+    filt = TranslationFilter(cfg)
+    ref = KalmanFilter(dim_x=6, dim_z=3)
+    ref.F = np.block([[np.eye(3), cfg.dt * np.eye(3)], [np.zeros((3, 3)), np.eye(3)]])
+    ref.H = np.eye(3, 6)
+    ref.P = np.diag([cfg.initial_position_std**2] * 3 + [cfg.initial_velocity_std**2] * 3)
+    ref.Q = ref.F @ np.diag([cfg.position_process_std**2] * 3 + [cfg.velocity_process_std**2] * 3) @ ref.F.T
+    ref.R = sigma**2 * np.eye(3)
+    ref.x = np.array([1.0, -2.0, depth, 0.0, 0.0, 0.0])
+    state = filt.init(np.repeat(ref.x[None, :3], 2, 0), np.zeros((2, 3)))
+    for z in np.random.default_rng(14).normal([1.0, -2.0, depth], [0.3, 0.3, 0.0], (5, 3)):
+        ref.predict()
+        ref.update(z)
+        state = filt.update(filt.predict(state), np.broadcast_to(z, (2, 3)))
+        np.testing.assert_allclose(state.x, [ref.x, ref.x], atol=1e-9)
+        np.testing.assert_allclose(state.p, [ref.P, ref.P], atol=1e-9)
+
+
+@pytest.mark.parametrize("fraction", [-0.01, float("nan"), float("inf")])
+def test_a_negative_or_non_finite_range_fraction_is_refused(fraction):
+    with pytest.raises(ValueError, match="position_measurement_range_fraction"):
+        MotionFilterConfig(position_measurement_range_fraction=fraction)

@@ -35,6 +35,8 @@ class MotionFilterConfig:
     position_process_std: float = 0.05  # m per step (Q^l, position block)
     velocity_process_std: float = 0.5  # m/s per step (Q^l, velocity block)
     position_measurement_std: float = 0.5  # m (R^l)
+    # Ours (0 = the thesis's fixed R^l): R^l's σ grows to this fraction of the measured depth.
+    position_measurement_range_fraction: float = 0.0
     initial_position_std: float = 0.5  # m
     initial_velocity_std: float = 5.0  # m/s
     ukf_alpha: float = 1.0  # (A.13)
@@ -55,6 +57,9 @@ class MotionFilterConfig:
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be positive, got {value}")
+        fraction = self.position_measurement_range_fraction
+        if not (np.isfinite(fraction) and fraction >= 0):
+            raise ValueError(f"position_measurement_range_fraction must be non-negative, got {fraction}")
         UnscentedParams(self.ukf_alpha, self.ukf_beta, self.ukf_kappa)
         outliers.check_outlier_prob(self.outlier_prob)
 
@@ -125,9 +130,20 @@ class TranslationFilter(TranslationUKF):
         q = np.repeat([cfg.position_process_std**2, cfg.velocity_process_std**2], 3)
         super().__init__(cfg.dt, q, np.full(3, cfg.position_measurement_std**2), cfg.unscented)
         self.p0 = np.repeat([cfg.initial_position_std**2, cfg.initial_velocity_std**2], 3)
+        self.std, self.range_fraction = cfg.position_measurement_std, cfg.position_measurement_range_fraction
 
     def init(self, pos, vel):
         return super().init(pos, vel, self.p0)
+
+    def update(self, state, z):
+        """(A.22)–(A.30) with R^l = σ²·I, σ = max(``position_measurement_std``, fraction · |depth of z|)
+        (ours, ``position_measurement_range_fraction``): a pose measured from the image is off by
+        a share of its range, not by a fixed distance."""
+        if self.range_fraction == 0.0:
+            return super().update(state, z)
+        z = np.asarray(z, float)
+        sigma = np.maximum(self.std, self.range_fraction * np.abs(z[..., 2]))
+        return super().update(state, z, sigma[..., None, None] ** 2 * np.eye(3))
 
     @staticmethod
     def estimate(state) -> tuple[np.ndarray, np.ndarray]:

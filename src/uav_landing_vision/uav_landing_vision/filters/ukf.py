@@ -136,10 +136,12 @@ class TranslationUKF:
         x, p = unscented_moments(sig, self.wm, self.wc)
         return UKFState(x, p, sig)
 
-    def update(self, s: UKFState, z: np.ndarray) -> UKFState:
-        """Update (A.22)–(A.30) with measured positions ``z (M, 3)`` or ``(3,)``."""
+    def update(self, s: UKFState, z: np.ndarray, r: np.ndarray | None = None) -> UKFState:
+        """Update (A.22)–(A.30) with measured positions ``z (M, 3)`` or ``(3,)``; ``r``: this
+        measurement's covariance instead of the filter's R."""
         sig = s.sigmas if s.sigmas is not None else sigma_points(s.x, s.p, self.iota)
-        x, p, _, _ = kalman_update(sig, s.x, s.p, sig[..., :3], np.asarray(z, float), self.r, self.wm, self.wc)
+        r = self.r if r is None else r
+        x, p, _, _ = kalman_update(sig, s.x, s.p, sig[..., :3], np.asarray(z, float), r, self.wm, self.wc)
         return UKFState(x, p)
 
 
