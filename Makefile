@@ -6,7 +6,7 @@ VENV := .venv
 VENV_STAMP := $(VENV)/.installed
 BUILD_STAMP := install/.built
 ENV := source scripts/env.sh
-APT_PACKAGES := libegl1 libgl1 libegl-mesa0 libgl1-mesa-dri cmake g++ make python3-venv python3-dev
+APT_PACKAGES := libegl1 libgl1 libegl-mesa0 libgl1-mesa-dri cmake g++ make python3-venv python3-dev libfaketime
 BUILD_INPUTS := $(shell find src -type f -not -path '*/__pycache__/*' -not -name '*.pyc') colcon.meta scripts/link_workspace.py
 
 .PHONY: setup apt test demo bench clean

@@ -1,7 +1,11 @@
 """``gcs_bridge`` in-process over DDS: pose → landing guidance and MAVLink; bad input dropped."""
 
 import math
+import os
+import signal
 import socket
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -10,8 +14,10 @@ import yaml
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from pymavlink.dialects.v20 import common as mav2
+from rosgraph_msgs.msg import Clock
 from rclpy.parameter import Parameter
 from scipy.spatial.transform import Rotation
+from builtin_interfaces.msg import Time
 from std_srvs.srv import Trigger
 from test_node_common import ros  # noqa: F401 (fixture)
 
@@ -22,6 +28,8 @@ from uav_landing_vision.nodes.gcs_bridge import GcsBridgeNode
 from uav_landing_vision.nodes.qos import RELIABLE_QOS
 
 PARAMS = Path(__file__).parents[2] / "config" / "gcs_bridge.yaml"
+# libfaketime (Debian's libfaketime, in `make apt`): a process's system clock, set from a file
+FAKETIME_LIBS = sorted(Path("/usr/lib").glob("*/faketime/libfaketimeMT.so.1"))
 
 
 @pytest.fixture
@@ -298,6 +306,66 @@ def test_the_node_rides_out_a_gcs_link_that_is_down(ros):
         assert ros.spin_until(lambda: own() and values(own()[-1])["mavlink_up"] == "1")
         assert int(values(own()[-1])["mavlink_restored"]) == 1
         conn.close()
+
+
+def test_with_use_sim_time_the_ticks_follow_the_clock_topic(ros, mavlink_receiver):
+    """A replay (``use_sim_time``): no tick while /clock stands still, and the ticks' guidance is
+    stamped with sim time, 0.1 s apart at 10 Hz, as the clock is stepped."""
+    node = ros.add(GcsBridgeNode(
+        context=ros.context, cli_args=["--ros-args", "--params-file", str(PARAMS)],
+        parameter_overrides=[Parameter("mavlink.connection", value=f"udpout:127.0.0.1:{mavlink_receiver.port.getsockname()[1]}"),
+                             Parameter("use_sim_time", value=True)],
+    ))
+    guidance = ros.collect(LandingGuidance, "uav/landing_guidance", RELIABLE_QOS)
+    clock = ros.probe.create_publisher(Clock, "/clock", RELIABLE_QOS)
+    assert ros.spin_until(lambda: clock.get_subscription_count() and node.count_subscribers("uav/landing_guidance") >= 1)
+    ros.spin_until(lambda: False, timeout=0.5)
+    assert guidance == []  # sim time has not started
+    for k in range(1, 31):
+        clock.publish(Clock(clock=Time(sec=100 + k // 10, nanosec=(k % 10) * 100_000_000)))  # 100.1 ... 103.0 s
+        ros.spin_until(lambda: False, timeout=0.02)
+    assert ros.spin_until(lambda: any(g.header.stamp.sec == 103 for g in guidance))
+    stamps = [g.header.stamp.sec + g.header.stamp.nanosec * 1e-9 for g in guidance]
+    assert 100.0 <= min(stamps) and max(stamps) <= 103.0 + 1e-9
+    assert len(stamps) >= 20 and np.diff(stamps) == pytest.approx(0.1, abs=1e-6)
+
+
+def test_the_ticks_go_on_when_the_system_clock_steps_back(ros_domain_id, ros, mavlink_receiver, tmp_path):
+    """NTP or GPS time stepping the ship PC's clock back an hour, with the node running (its
+    process on a clock set by libfaketime; the monotonic clock untouched): guidance goes on at
+    the tick rate, stamped on the new time-line, and the GCS hears the heartbeat again at once.
+    With its ticks timed by the system clock, the node fell silent for the hour."""
+    assert FAKETIME_LIBS, "libfaketime is not installed (make apt)"
+    offset = tmp_path / "clock_offset"
+    offset.write_text("+0\n")
+    port = mavlink_receiver.port.getsockname()[1]
+    env = dict(os.environ, ROS_DOMAIN_ID=str(ros_domain_id), LD_PRELOAD=str(FAKETIME_LIBS[0]),
+               FAKETIME_TIMESTAMP_FILE=str(offset), FAKETIME_NO_CACHE="1", FAKETIME_DONT_FAKE_MONOTONIC="1")
+    guidance = ros.collect(LandingGuidance, "uav/landing_guidance", RELIABLE_QOS)
+    node = subprocess.Popen(
+        [sys.executable, "-m", "uav_landing_vision.nodes.gcs_bridge", "--ros-args", "--params-file", str(PARAMS),
+         "-p", f"mavlink.connection:=udpout:127.0.0.1:{port}"],
+        env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        assert ros.spin_until(lambda: len(guidance) >= 3), "no guidance before the step"
+        while mavlink_receiver.recv_match(blocking=False) is not None:  # the heartbeats so far
+            pass
+        last_before = max(g.header.stamp.sec for g in guidance)
+        offset.write_text("-3600\n")
+
+        def after():
+            return [g for g in guidance if g.header.stamp.sec < last_before - 3000]
+
+        assert ros.spin_until(lambda: len(after()) >= 10), "the ticks stopped when the clock stepped back"
+        heard = []
+        while (msg := mavlink_receiver.recv_match(blocking=False)) is not None:
+            heard.append(msg.get_type())
+        assert "HEARTBEAT" in heard
+        assert all(g.stage == LandingGuidance.LOITER for g in after())
+    finally:
+        node.send_signal(signal.SIGINT)
+        output, _ = node.communicate(timeout=30)
+    assert node.returncode == 0, output
 
 
 def mav_parse(data: bytes) -> list:

@@ -1,11 +1,15 @@
 """``gcs_bridge``: tracker pose → MAVLink to the GCS/autopilot and ``uav/landing_guidance``.
 
 Subscribes ``uav/pose`` (PoseWithCovarianceStamped) and ``uav/tracker_status`` (TrackerStatus),
-both reliable; every ``1 / mavlink.rate_hz`` seconds of node time (sim time with
-``use_sim_time``) it ticks the core (``gcs.GcsBridge``: landing cone, stage machine, MAVLink)
-and publishes its ``LandingGuidance`` (frame ``landing``: x bow, y starboard, z down, origin at
+both reliable; every ``1 / mavlink.rate_hz`` seconds it ticks the core (``gcs.GcsBridge``:
+landing cone, stage machine, MAVLink) and publishes its ``LandingGuidance`` (frame ``landing``: x bow, y starboard, z down, origin at
 the net), stamped with its pose's header stamp as received (the core's float seconds cannot hold
-an epoch stamp to the nanosecond) or, without a fresh pose, the tick's time. Parameters: ``config/gcs_bridge.yaml``, validated into ``gcs.GcsBridgeConfig``.
+an epoch stamp to the nanosecond) or, without a fresh pose, the tick's time. The ticks are timed
+by the steady clock, and under ``use_sim_time`` by sim time (``/clock``): a timer on the system
+clock would wait out a step back of that clock (NTP or GPS time setting it right), for as long as
+the step, with no heartbeat and no GO_AROUND. The core reads the time of each tick, and of each
+pose, from the node's clock, as the stamps are; it handles that clock jumping back.
+Parameters: ``config/gcs_bridge.yaml``, validated into ``gcs.GcsBridgeConfig``.
 A malformed pose (NaN, non-unit quaternion, bad covariance), a pose in a frame other than the
 camera's (``camera.frame_id``: the mount describes that camera only) or an unknown tracker state
 is logged and dropped; no position is sent for it. So are every pose and status while
@@ -24,6 +28,7 @@ from the net).
 import sys
 
 from geometry_msgs.msg import PoseWithCovarianceStamped
+from rclpy.clock import Clock, ClockType
 from std_srvs.srv import Trigger
 from uav_landing_msgs.msg import LandingGuidance, TrackerStatus
 
@@ -51,7 +56,9 @@ class GcsBridgeNode(LandingNode):
             self.create_subscription(TrackerStatus, "uav/tracker_status", self._on_status, RELIABLE_QOS),
         )
         self.create_service(Trigger, "~/reset", self._on_reset)
-        self.create_timer(1.0 / self.config.mavlink.rate_hz, self._tick)
+        sim_time = self.get_parameter("use_sim_time").value
+        self.create_timer(1.0 / self.config.mavlink.rate_hz, self._tick,
+                          clock=None if sim_time else Clock(clock_type=ClockType.STEADY_TIME))
         self.get_logger().info(f"MAVLink {self.config.mavlink.messages} to {self.config.mavlink.connection}")
 
     def _now_s(self) -> float:
