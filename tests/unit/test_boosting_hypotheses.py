@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from uav_landing_vision.boosting import (
     HypothesisConfig,
@@ -12,9 +13,11 @@ from uav_landing_vision.boosting import (
     weak_perspective_depth,
     weak_perspective_position,
 )
-from uav_landing_vision.boosting.obb import obb_from_points
+from uav_landing_vision.boosting.obb import obb_from_mask, obb_from_points
 from uav_landing_vision.camera import CameraModel, load_camera_info_yaml
-from uav_landing_vision.resources import config_path
+from uav_landing_vision.model import fixed_wing_mesh
+from uav_landing_vision.render import Renderer
+from uav_landing_vision.resources import config_path, model_file
 
 
 @pytest.fixture(scope="module")
@@ -76,6 +79,30 @@ def test_centre_offset_turns_with_the_box(camera):
     np.testing.assert_allclose(hyp.positions[0], origin, atol=1e-6)  # float32 entries
 
 
+def test_turned_orientation_puts_each_hypothesis_box_at_the_observed_angle(camera):
+    """``turn_orientation``: each entry's orientation turned about the optical axis by the
+    observed angle − the entry's (scipy oracle); rendered where the database's entries were, the
+    hypotheses' boxes lie at the observed angle, with the entries' aspect ratios."""
+    shipped = PoseDatabase.load(model_file("pose_database.npz"), camera=camera)
+    entry = shipped.obbs[123].astype(float)
+    obs = Obb(float(entry[0] + 17.0) % 180.0, camera.cx, camera.cy, float(entry[3]), float(entry[4]))
+    off = np.abs((shipped.obbs[:, 0] - obs.theta + 90.0) % 180.0 - 90.0) > 8.0  # none near the observed angle
+    db = PoseDatabase(shipped.quats[off], shipped.obbs[off], distance=shipped.distance, camera=camera, model="test")
+    plain = hypotheses_from_obb(db, obs, 5, camera, turn_orientation=False)
+    turned = hypotheses_from_obb(db, obs, 5, camera)
+    np.testing.assert_array_equal(turned.indices, plain.indices)
+    np.testing.assert_array_equal(turned.positions, plain.positions)
+    turns = (obs.theta - db.obbs[turned.indices, 0] + 90.0) % 180.0 - 90.0
+    assert np.all(np.abs(turns) > 8.0)
+    oracle = Rotation.from_rotvec(np.radians(turns)[:, None] * [0.0, 0.0, 1.0]) * Rotation.from_quat(plain.quats)
+    assert np.allclose(np.abs(np.sum(oracle.as_quat() * turned.quats, axis=1)), 1.0, atol=1e-12)
+    with Renderer(camera, fixed_wing_mesh("low")) as renderer:
+        for q, i in zip(turned.quats, turned.indices):
+            box = obb_from_mask(renderer.silhouette_full(q, np.array([0.0, 0.0, db.distance])))
+            assert (box.theta - obs.theta + 90.0) % 180.0 - 90.0 == pytest.approx(0.0, abs=0.5)
+            assert box.aspect == pytest.approx(db.obbs[i, 3] / db.obbs[i, 4], rel=0.02)
+
+
 def test_hypotheses_are_sorted_and_carry_their_entries(camera):
     rng = np.random.default_rng(4)
     n = 300
@@ -84,7 +111,7 @@ def test_hypotheses_are_sorted_and_carry_their_entries(camera):
     quats = rng.normal(size=(n, 4))
     quats /= np.linalg.norm(quats, axis=1, keepdims=True)
     db = _database(camera, obbs, quats)
-    hyp = hypotheses_from_obb(db, Obb(45.0, 500.0, 300.0, 150.0, 40.0), 25, camera)
+    hyp = hypotheses_from_obb(db, Obb(45.0, 500.0, 300.0, 150.0, 40.0), 25, camera, turn_orientation=False)
     assert len(hyp) == 25
     assert np.all(np.diff(hyp.distances) >= 0)
     np.testing.assert_allclose(hyp.quats, db.quats[hyp.indices].astype(float))

@@ -31,6 +31,8 @@ def register(sub) -> None:
     p.add_argument("--aspect-weight", type=float, default=10.0,
                    help="weight of the aspect ratio in the distance (4.4) (default: 10; the thesis: 1)")
     p.add_argument("--thesis-centre", action="store_true", help="use the box centre as is in (4.6)-(4.7), as the thesis")
+    p.add_argument("--thesis-orientation", action="store_true",
+                   help="use each entry's orientation as is, not turned to the observed box angle, as the thesis")
     p.add_argument("--json", type=Path, default=None, metavar="OUT", help="write the statistics as JSON")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_evaluate)
@@ -88,6 +90,7 @@ def _evaluate(args) -> int:
         config = BoostingEvalConfig(
             samples=args.samples, distances=tuple(args.distances), top=tuple(sorted(set(args.top))),
             seed=args.seed, placement=args.placement, centre_offset=not args.thesis_centre,
+            turn_orientation=not args.thesis_orientation,
             aspect_weight=args.aspect_weight,
         )
         if args.json is not None:

@@ -37,7 +37,7 @@ def check_distances(distances) -> None:
 
 @dataclass(frozen=True)
 class BoostingEvalConfig:
-    """Samples per distance, distances (m), top-k, seed, placement, centre offset, FAST, (4.4) weight."""
+    """Samples per distance, distances (m), top-k, seed, placement, centre offset, orientation turn, FAST, (4.4) weight."""
 
     samples: int = 15000
     distances: tuple[float, ...] = (5.0, 15.0, 30.0)
@@ -45,6 +45,7 @@ class BoostingEvalConfig:
     seed: int = 0
     placement: str = "axis"
     centre_offset: bool = True
+    turn_orientation: bool = True
     fast: FastConfig = field(default_factory=FastConfig)
     aspect_weight: float = ASPECT_WEIGHT
 
@@ -92,7 +93,7 @@ def silhouette_roi(alpha: np.ndarray):
 
 
 def rendered_hypotheses(renderer, db: PoseDatabase, camera: CameraModel, quat, trans, background, sun, albedo,
-                        fast: FastConfig, k: int, centre_offset: bool = True):
+                        fast: FastConfig, k: int, centre_offset: bool = True, turn_orientation: bool = True):
     """The UAV at ``(quat, trans)`` shaded over ``background`` and boosting's ``k`` hypotheses
     from its silhouette's box (grown as the boosting stage grows ROIs): ``(frame, hypotheses)``,
     the hypotheses None when FAST finds no box."""
@@ -100,7 +101,7 @@ def rendered_hypotheses(renderer, db: PoseDatabase, camera: CameraModel, quat, t
     roi = silhouette_roi(alpha)
     obb = None if roi is None else obb_from_frame(frame, roi, fast, HypothesisConfig.roi_margin,
                                                   HypothesisConfig.roi_pad_px)
-    return frame, None if obb is None else hypotheses_from_obb(db, obb, k, camera, centre_offset)
+    return frame, None if obb is None else hypotheses_from_obb(db, obb, k, camera, centre_offset, turn_orientation)
 
 
 def closest_errors(q_true, t_true, quats, positions, top) -> tuple[np.ndarray, np.ndarray]:
@@ -145,7 +146,7 @@ def evaluate_boosting(camera: CameraModel, mesh, config: BoostingEvalConfig = Bo
         for i in tqdm(range(config.samples), desc=f"{distance:g} m", disable=not progress, file=sys.stderr,
                       mininterval=2.0):
             _, hyp = rendered_hypotheses(renderer, db, camera, quats[i], trans[i], backgrounds[i % len(backgrounds)],
-                                         sun, albedo, config.fast, kmax, config.centre_offset)
+                                         sun, albedo, config.fast, kmax, config.centre_offset, config.turn_orientation)
             if hyp is None:
                 continue
             t_err[i], r_err[i] = closest_errors(quats[i], trans[i], hyp.quats, hyp.positions, top)

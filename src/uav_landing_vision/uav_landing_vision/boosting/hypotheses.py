@@ -5,6 +5,10 @@ Translation: depth by the weak-perspective area ratio (4.5), then X, Y by back-p
 box centre (4.6)–(4.7). With ``centre_offset`` (default) the centre is first moved by the
 entry's own offset between its box centre and the projection of the body origin, scaled to
 the observed size and turned by the angle difference; the thesis uses the box centre as is.
+With ``turn_orientation`` (default) the entry's orientation is turned by that angle difference too, about
+the optical axis: the entry was rendered on that axis, so its silhouette turns rigidly with it,
+and the hypothesis's box then lies at the observed angle; the thesis uses the entry's quaternion
+as is.
 """
 
 from dataclasses import dataclass, field
@@ -12,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..camera import CameraModel
+from ..geometry.quaternion import quat_multiply
 from .database import ASPECT_WEIGHT, DEFAULT_FILE, PoseDatabase
 from .obb import THETA_PERIOD_DEG, FastConfig, Obb, check_roi, obb_from_frame
 
@@ -42,6 +47,7 @@ class HypothesisConfig:
     roi_margin: float = 0.10  # of the ROI's width / height, each side
     roi_pad_px: float = 2.0  # plus this, each side
     min_roi_cover: float = 0.6  # ours, 0 = thesis: least long side of the box / longer side of the ROI
+    turn_orientation: bool = True  # ours, False = thesis: turn each entry's orientation to the observed angle
 
     def __post_init__(self):
         if not 0.0 <= self.min_roi_cover <= 1.0:
@@ -86,7 +92,7 @@ def weak_perspective_position(uv, depth, camera: CameraModel) -> np.ndarray:
 
 
 def hypotheses_from_obb(database: PoseDatabase, obb: Obb, k: int, camera: CameraModel,
-                        centre_offset: bool = True) -> Hypotheses:
+                        centre_offset: bool = True, turn_orientation: bool = True) -> Hypotheses:
     """The ``k`` poses of the entries nearest to an observed box, best first (vectorised)."""
     if not (obb.w > 0 and obb.h > 0):
         raise ValueError(f"observed box must have positive sides, got {obb}")
@@ -94,15 +100,19 @@ def hypotheses_from_obb(database: PoseDatabase, obb: Obb, k: int, camera: Camera
     ref = database.obbs[idx].astype(float)
     depth = weak_perspective_depth(database.distance, database.areas[idx].astype(float), obb.area)
     centre = np.broadcast_to(np.array([obb.x, obb.y]), (len(idx), 2))
+    turn = np.radians(_wrap_half_period(obb.theta - ref[:, 0]))  # observed angle − entry's, image x → y
     if centre_offset:
         scale = database.distance / depth
         offset = ref[:, 1:3] - np.array([database.camera.cx, database.camera.cy])
-        turn = np.radians(_wrap_half_period(obb.theta - ref[:, 0]))
         c, s = np.cos(turn), np.sin(turn)
         rotated = np.stack([c * offset[:, 0] - s * offset[:, 1], s * offset[:, 0] + c * offset[:, 1]], axis=1)
         centre = centre - scale[:, None] * rotated
     positions = weak_perspective_position(centre, depth, camera)
-    return Hypotheses(obb, database.quats[idx].astype(float), positions, dist, idx)
+    quats = database.quats[idx].astype(float)
+    if turn_orientation:
+        about_axis = np.stack([np.zeros_like(turn), np.zeros_like(turn), np.sin(turn / 2), np.cos(turn / 2)], axis=1)
+        quats = quat_multiply(about_axis, quats)  # the camera's z: an image angle x → y
+    return Hypotheses(obb, quats, positions, dist, idx)
 
 
 def _wrap_half_period(d_theta):
@@ -139,4 +149,5 @@ class PoseHypothesisGenerator:
         if obb is None or obb.w < self.config.min_roi_cover * max(w, h):
             return None
         k = self.config.count(first_frame) if count is None else count
-        return hypotheses_from_obb(self.database, obb, k, self.camera, self.config.centre_offset)
+        return hypotheses_from_obb(self.database, obb, k, self.camera, self.config.centre_offset,
+                                   self.config.turn_orientation)
