@@ -11,13 +11,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from pymavlink.dialects.v20 import common as mav2
-from rosgraph_msgs.msg import Clock
 from rclpy.parameter import Parameter
+from rosgraph_msgs.msg import Clock
 from scipy.spatial.transform import Rotation
-from builtin_interfaces.msg import Time
 from std_srvs.srv import Trigger
 from test_node_common import ros  # noqa: F401 (fixture)
 

@@ -5,10 +5,10 @@ Translation: depth by the weak-perspective area ratio (4.5), then X, Y by back-p
 box centre (4.6)–(4.7). With ``centre_offset`` (default) the centre is first moved by the
 entry's own offset between its box centre and the projection of the body origin, scaled to
 the observed size and turned by the angle difference; the thesis uses the box centre as is.
-With ``turn_orientation`` (default) the entry's orientation is turned by that angle difference too, about
-the optical axis: the entry was rendered on that axis, so its silhouette turns rigidly with it,
-and the hypothesis's box then lies at the observed angle; the thesis uses the entry's quaternion
-as is.
+With ``turn_orientation`` (default) the entry's orientation is turned by that angle difference
+too, about the optical axis: the entry was rendered on that axis, so its silhouette turns
+rigidly with it, and the hypothesis's box then lies at the observed angle; the thesis uses the
+entry's quaternion as is.
 """
 
 from dataclasses import dataclass, field
@@ -24,8 +24,9 @@ from .obb import THETA_PERIOD_DEG, FastConfig, Obb, check_roi, obb_from_frame
 @dataclass(frozen=True)
 class HypothesisConfig:
     """M hypotheses at the first frame, M − M0 afterwards; the database file (a name in
-    ``models/`` or a path) and its (4.4) weight; FAST settings; centre offset on/off; how much
-    the ROI is grown before its FAST corners are taken; how much of the ROI the box must span.
+    ``models/`` or a path) and its (4.4) weight; FAST settings; centre offset and orientation turn
+    on/off; how much the ROI is grown before its FAST corners are taken; how much of the ROI the
+    box must span.
 
     The growth is ours: FAST needs its radius-3 ring inside the image, so in a ROI that is
     tight on the UAV the corners of its outermost pixels (wing tips, tail) are never found and

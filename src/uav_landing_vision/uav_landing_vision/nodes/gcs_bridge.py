@@ -2,13 +2,14 @@
 
 Subscribes ``uav/pose`` (PoseWithCovarianceStamped) and ``uav/tracker_status`` (TrackerStatus),
 both reliable; every ``1 / mavlink.rate_hz`` seconds it ticks the core (``gcs.GcsBridge``:
-landing cone, stage machine, MAVLink) and publishes its ``LandingGuidance`` (frame ``landing``: x bow, y starboard, z down, origin at
-the net), stamped with its pose's header stamp as received (the core's float seconds cannot hold
-an epoch stamp to the nanosecond) or, without a fresh pose, the tick's time. The ticks are timed
-by the steady clock, and under ``use_sim_time`` by sim time (``/clock``): a timer on the system
-clock would wait out a step back of that clock (NTP or GPS time setting it right), for as long as
-the step, with no heartbeat and no GO_AROUND. The core reads the time of each tick, and of each
-pose, from the node's clock, as the stamps are; it handles that clock jumping back.
+landing cone, stage machine, MAVLink) and publishes its ``LandingGuidance`` (frame ``landing``:
+x bow, y starboard, z down, origin at the net), stamped with its pose's header stamp as received
+(the core's float seconds cannot hold an epoch stamp to the nanosecond) or, without a fresh pose,
+the tick's time. The ticks are timed by the steady clock, and under ``use_sim_time`` by sim time
+(``/clock``): a timer on the system clock would wait out a step back of that clock (NTP or GPS
+time setting it right), for as long as the step, with no heartbeat and no GO_AROUND. The core
+reads the time of each tick, and of each pose, from the node's clock, as the stamps are; it
+handles that clock jumping back.
 Parameters: ``config/gcs_bridge.yaml``, validated into ``gcs.GcsBridgeConfig``.
 A malformed pose (NaN, non-unit quaternion, bad covariance), a pose in a frame other than the
 camera's (``camera.frame_id``: the mount describes that camera only) or an unknown tracker state
