@@ -334,7 +334,9 @@ def test_the_ticks_go_on_when_the_system_clock_steps_back(ros_domain_id, ros, ma
     """NTP or GPS time stepping the ship PC's clock back an hour, with the node running (its
     process on a clock set by libfaketime; the monotonic clock untouched): guidance goes on at
     the tick rate, stamped on the new time-line, and the GCS hears the heartbeat again at once.
-    With its ticks timed by the system clock, the node fell silent for the hour."""
+    With its ticks timed by the system clock, the node fell silent for the hour. The clock is set
+    right again before the node is stopped: stopped an hour back, Fast DDS crashed destroying
+    the node (SIGSEGV) in 6 of 16 runs, set right in none of 16."""
     assert FAKETIME_LIBS, "libfaketime is not installed (make apt)"
     offset = tmp_path / "clock_offset"
     offset.write_text("+0\n")
@@ -362,6 +364,9 @@ def test_the_ticks_go_on_when_the_system_clock_steps_back(ros_domain_id, ros, ma
             heard.append(msg.get_type())
         assert "HEARTBEAT" in heard
         assert all(g.stage == LandingGuidance.LOITER for g in after())
+        offset.write_text("+0\n")  # set right before the stop (see the docstring)
+        seen = len(guidance)
+        assert ros.spin_until(lambda: any(g.header.stamp.sec >= last_before for g in guidance[seen:]))
     finally:
         node.send_signal(signal.SIGINT)
         output, _ = node.communicate(timeout=30)
