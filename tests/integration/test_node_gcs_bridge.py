@@ -391,3 +391,13 @@ def mav_parse(data: bytes) -> list:
 def test_bad_parameters_fail_start_up(ros, kwargs, message):
     with pytest.raises(ConfigError, match=message):
         GcsBridgeNode(context=ros.context, **kwargs)
+
+
+def test_a_signing_timestamp_file_out_of_reach_fails_start_up(ros, tmp_path):
+    key = tmp_path / "signing.key"
+    key.write_text("ab" * 32)
+    overrides = [Parameter("mavlink.signing_key_file", value=str(key)),
+                 Parameter("mavlink.signing_timestamp_file", value=str(tmp_path / "missing" / "t"))]
+    with pytest.raises(ConfigError, match=r"signing timestamp file .*/missing/t: cannot write it"):
+        GcsBridgeNode(context=ros.context, cli_args=["--ros-args", "--params-file", str(PARAMS)],
+                      parameter_overrides=overrides)

@@ -61,6 +61,7 @@ def edit(path: str, value):
         ("mavlink.system_id", 0, "1..255"),
         ("mavlink.rate_hz", 150.0, r"rate_hz must be in \(0, 100\]"),
         ("mavlink.signing_link_id", 256, "signing_link_id must be in 0..255"),
+        ("mavlink.signing_timestamp_file", "/var/lib/station/ts", "signing is off"),
         ("mavlink.connection", " ", "connection"),
         ("camera.position_m", [0.0, 1.0], "expected 3 values"),
         ("camera.frame_id", " ", "camera.frame_id must not be empty"),

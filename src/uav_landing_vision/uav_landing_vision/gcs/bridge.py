@@ -77,6 +77,11 @@ class GcsBridge:
     def link_stats(self) -> LinkStats:
         return self._sender.stats
 
+    @property
+    def signing_store_error(self) -> str:
+        """Why the MAVLink signing timestamp could not be stored at the last try, or ""."""
+        return self._sender.signing_store_error
+
     def on_pose(self, stamp_s: float, position_cam, quat_cam, covariance, now_s: float) -> bool:
         """Take a tracker pose (FLU body in the camera optical frame, ROS 6×6 covariance).
 

@@ -79,6 +79,7 @@ class MavlinkConfig:
     rate_hz: float  # position messages per second at most
     signing_key_file: str  # "" = no signing
     signing_link_id: int
+    signing_timestamp_file: str  # where the signing timestamp survives restarts; "" = the key file's path + ".timestamp"
 
     def __post_init__(self):
         if not self.connection.strip():
@@ -91,6 +92,15 @@ class MavlinkConfig:
             raise ValueError(f"mavlink.messages must be a non-empty list of distinct names, got {self.messages}")
         if not 0.0 < self.rate_hz <= 100.0:
             raise ValueError("mavlink.rate_hz must be in (0, 100]")
+        if self.signing_timestamp_file and not self.signing_key_file:
+            raise ValueError("mavlink.signing_timestamp_file is set, but signing is off (no mavlink.signing_key_file)")
+
+    @property
+    def signing_timestamp_path(self) -> str:
+        """The signing timestamp's state file ("" without signing)."""
+        if not self.signing_key_file:
+            return ""
+        return self.signing_timestamp_file or self.signing_key_file + ".timestamp"
 
 
 @dataclass(frozen=True)

@@ -9,6 +9,7 @@ import math
 import string
 import time
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 from pymavlink import mavutil
@@ -18,6 +19,7 @@ from ..geometry import quat_conjugate, quat_to_euler_zyx
 from .config import MavlinkConfig
 from .frames import LandingPose, euler_covariance, target_in_body
 from .link import LinkStats, open_transport
+from .signing import SigningTimestamps, clock_timestamp
 
 ODOMETRY_FRAME_IDS = {
     "LOCAL_FRD": mav2.MAV_FRAME_LOCAL_FRD,
@@ -25,7 +27,6 @@ ODOMETRY_FRAME_IDS = {
     "MOCAP_NED": 14,  # MAV_FRAME_MOCAP_NED, now MAV_FRAME_RESERVED_14 in common.xml
 }
 _NAN_21 = [math.nan] + [0.0] * 20  # "unknown" covariance: NaN in the first element
-SIGNING_EPOCH_S = 1420070400  # 2015-01-01, the origin of MAVLink 2 signing timestamps
 
 
 def load_signing_key(path: str | Path) -> bytes:
@@ -36,14 +37,15 @@ def load_signing_key(path: str | Path) -> bytes:
     return bytes.fromhex(text)
 
 
-def encoder(file, system_id: int, component_id: int, key: bytes | None = None, link_id: int = 0):
+def encoder(file, system_id: int, component_id: int, key: bytes | None = None, link_id: int = 0,
+            timestamp: int | None = None):
     """A MAVLink 2 ``common`` encoder that writes each frame with ``file.write``, signing it if ``key``
-    (as pymavlink's ``setup_signing``: the timestamp in 10 µs units since 2015-01-01)."""
+    from ``timestamp`` (``gcs.signing``; the clock's now if None, as pymavlink's ``setup_signing``)."""
     mav = mav2.MAVLink(file, srcSystem=system_id, srcComponent=component_id)
     mav.robust_parsing = True
     if key is not None:
         mav.signing.secret_key, mav.signing.sign_outgoing, mav.signing.link_id = key, True, link_id
-        mav.signing.timestamp = int((max(time.time(), SIGNING_EPOCH_S) - SIGNING_EPOCH_S) * 100_000)
+        mav.signing.timestamp = clock_timestamp(time.time()) if timestamp is None else timestamp
     return mav
 
 
@@ -113,17 +115,30 @@ def _landing_target(mav, usec: int, pose: LandingPose):
 
 class MavlinkSender:
     """The station's MAVLink output: heartbeat, position messages, status texts, over a link
-    that never blocks or raises (``gcs.link``): what it cannot send is dropped and counted."""
+    that never blocks or raises (``gcs.link``): what it cannot send is dropped and counted.
+    Signed, its timestamps follow ``clock`` (Unix seconds) and survive restarts (``gcs.signing``)."""
 
-    def __init__(self, cfg: MavlinkConfig):
+    def __init__(self, cfg: MavlinkConfig, clock: Callable[[], float] = time.time):
         key = load_signing_key(cfg.signing_key_file) if cfg.signing_key_file else None
         self._cfg = cfg
+        self._stamps = SigningTimestamps(cfg.signing_timestamp_path, clock) if key is not None else None
         self.link = open_transport(cfg.connection)
-        self.mav = encoder(self.link, cfg.system_id, cfg.component_id, key, cfg.signing_link_id)
+        start = self._stamps.start if self._stamps is not None else None
+        self.mav = encoder(self.link, cfg.system_id, cfg.component_id, key, cfg.signing_link_id, start)
 
     @property
     def stats(self) -> LinkStats:
         return self.link.stats
+
+    @property
+    def signing_store_error(self) -> str:
+        """Why the signing timestamp could not be stored at the last try, or ""."""
+        return self._stamps.store_error if self._stamps is not None else ""
+
+    def _send(self, msg) -> None:
+        if self._stamps is not None:
+            self.mav.signing.timestamp = self._stamps.advance(self.mav.signing.timestamp)
+        self.mav.send(msg)
 
     def poll(self) -> bool:
         """Service the link (see ``Link.poll``): True once when it sends again after an outage."""
@@ -132,17 +147,17 @@ class MavlinkSender:
     def send_pose(self, pose: LandingPose, stamp_s: float) -> list[str]:
         msgs = encode_pose(self.mav, self._cfg.messages, pose, stamp_s, self._cfg.odometry_frame)
         for m in msgs:
-            self.mav.send(m)
+            self._send(m)
         return [m.get_type() for m in msgs]
 
     def send_heartbeat(self) -> None:
-        self.mav.heartbeat_send(
+        self._send(self.mav.heartbeat_encode(
             mav2.MAV_TYPE_ONBOARD_CONTROLLER, mav2.MAV_AUTOPILOT_INVALID, 0, 0, mav2.MAV_STATE_ACTIVE
-        )
+        ))
 
     def send_statustext(self, text: str, severity: int) -> None:
         """One STATUSTEXT (at most 50 ASCII characters; longer text is cut)."""
-        self.mav.statustext_send(severity, text.encode("ascii", "replace")[:50])
+        self._send(self.mav.statustext_encode(severity, text.encode("ascii", "replace")[:50]))
 
     def close(self) -> None:
         self.link.close()

@@ -23,7 +23,8 @@ the frames not sent are dropped (``mavlink_dropped``, with the link's error in t
 counts what the bridge handed to the link, ``mavlink_written`` what went out. The service
 ``~/reset`` (std_srvs/Trigger) is the
 operator's reset of the stage machine to LOITER (NO_RETURN holds until it, e.g. after recovery
-from the net).
+from the net). With MAVLink signing on, a signing timestamp file that cannot be read or written
+stops the node at start-up; one that cannot be written later is logged as an error (``gcs.signing``).
 """
 
 import sys
@@ -47,6 +48,7 @@ class GcsBridgeNode(LandingNode):
         super().__init__("gcs_bridge", **kwargs)
         self.config = self.load_config(GcsBridgeConfig)
         self._pose_stamps = {}  # float seconds the core knows a pose by -> its header stamp, the last few
+        self._signing_store_error = ""
         try:
             self._bridge = GcsBridge(self.config)
         except (OSError, ValueError) as exc:
@@ -151,6 +153,14 @@ class GcsBridgeNode(LandingNode):
         for key in ("written", "dropped", "failures", "restored"):
             self.counters[f"mavlink_{key}"] = getattr(link, key)
         self.counters["mavlink_up"] = int(link.up)
+        store_error = self._bridge.signing_store_error
+        if store_error != self._signing_store_error:
+            if store_error:
+                self.get_logger().error(f"MAVLink signing timestamp not stored: {store_error}; a restart may "
+                                        "sign below what the GCS has seen, and the GCS would refuse it")
+            else:
+                self.get_logger().info("MAVLink signing timestamp stored again")
+            self._signing_store_error = store_error
         if lost:
             self.drop(f"{lost} MAVLink frame(s) not sent to '{connection}': {link.last_error}", count=lost, kind="mavlink")
 

@@ -1,0 +1,185 @@
+"""MAVLink 2 signing timestamps against pymavlink's receiving rules: a stream a receiver meets anew
+is refused more than a minute behind the receiver's own timestamp, a known stream below its last.
+
+The station's clock is a stand-in function; each receiver's own timestamp is set as its clock
+would have set it at that moment.
+"""
+
+import dataclasses
+import time
+
+import pytest
+from test_gcs_landing import CONFIG
+
+from uav_landing_vision.gcs.mavlink import MavlinkSender, open_link
+from uav_landing_vision.gcs.signing import RESERVE_S, UNITS_PER_S, SigningTimestamps, clock_timestamp
+
+KEY = bytes(range(32))
+
+
+class Clock:
+    def __init__(self):
+        self.now = time.time()
+
+    def __call__(self):
+        return self.now
+
+
+@pytest.fixture
+def key_file(tmp_path):
+    path = tmp_path / "signing.key"
+    path.write_text(KEY.hex() + "\n")
+    return path
+
+
+@pytest.fixture
+def gcs():
+    """A signing GCS on loopback whose own timestamp is that of its clock at ``now``."""
+    conns = []
+
+    def start(now, port=0):
+        conn = open_link(f"udpin:127.0.0.1:{port}", 255, 190, KEY)
+        conn.mav.signing.timestamp = clock_timestamp(now)
+        conns.append(conn)
+        return conn
+
+    yield start
+    for c in conns:
+        c.close()
+
+
+def station(conn, key_file, clock, timestamp_file=""):
+    mav = dataclasses.replace(
+        CONFIG.mavlink, connection=f"udpout:127.0.0.1:{conn.port.getsockname()[1]}",
+        signing_key_file=str(key_file), signing_timestamp_file=str(timestamp_file),
+    )
+    return MavlinkSender(mav, clock=clock)
+
+
+def heartbeats_taken(conn, sender, count=3, timeout=3.0):
+    """Heartbeats the GCS accepted of ``count`` sent; the refused ones come out as BAD_DATA."""
+    for _ in range(count):
+        sender.send_heartbeat()
+    taken = seen = 0
+    deadline = time.monotonic() + timeout
+    while seen < count and time.monotonic() < deadline:
+        m = conn.recv_match(blocking=True, timeout=0.1)
+        if m is not None and m.get_type() in ("HEARTBEAT", "BAD_DATA"):
+            seen += 1
+            taken += m.get_type() == "HEARTBEAT"
+    assert seen == count, "the GCS did not receive every frame"
+    return taken
+
+
+def test_a_gcs_restarted_after_the_station_ran_an_hour_accepts_it(gcs, key_file):
+    clock = Clock()
+    first = gcs(clock.now)
+    sender = station(first, key_file, clock)
+    assert heartbeats_taken(first, sender) == 3
+    clock.now += 3600.0
+    port = first.port.getsockname()[1]
+    first.close()
+    restarted = gcs(clock.now, port)  # the station's stream is new to it
+    assert heartbeats_taken(restarted, sender) == 3
+    sender.close()
+
+
+def test_a_station_restarted_after_its_clock_stepped_back_is_accepted(gcs, key_file, tmp_path):
+    clock = Clock()
+    conn = gcs(clock.now)
+    state = tmp_path / "state" / "signing.timestamp"
+    state.parent.mkdir()
+    sender = station(conn, key_file, clock, state)
+    assert heartbeats_taken(conn, sender) == 3
+    sender.close()
+    clock.now -= 3600.0
+    sender = station(conn, key_file, clock, state)
+    assert heartbeats_taken(conn, sender) == 3
+    sender.close()
+
+
+def test_without_the_stored_timestamp_that_restart_is_refused(gcs, key_file, tmp_path):
+    """What the stored timestamp prevents (the receiving rule the test above relies on)."""
+    clock = Clock()
+    conn = gcs(clock.now)
+    sender = station(conn, key_file, clock, tmp_path / "a")
+    assert heartbeats_taken(conn, sender) == 3
+    sender.close()
+    clock.now -= 3600.0
+    sender = station(conn, key_file, clock, tmp_path / "b")
+    assert heartbeats_taken(conn, sender) == 0
+    sender.close()
+
+
+def test_the_default_state_file_is_beside_the_key(gcs, key_file):
+    conn = gcs(time.time())
+    sender = station(conn, key_file, Clock())
+    sender.close()
+    stored = int((key_file.parent / "signing.key.timestamp").read_text())
+    assert stored == sender._stamps.start + int(RESERVE_S * UNITS_PER_S)
+
+
+def test_stamps_follow_the_clock_and_never_go_back(tmp_path):
+    clock = Clock()
+    stamps = SigningTimestamps(tmp_path / "t", clock)
+    t0 = clock_timestamp(clock.now)
+    assert stamps.start == t0 and stamps.advance(t0 + 5) == t0 + 5  # frames ahead of the clock keep their rise
+    clock.now += 10.0
+    assert stamps.advance(t0 + 5) == t0 + 10 * UNITS_PER_S
+    clock.now -= 3600.0
+    assert stamps.advance(t0 + 10 * UNITS_PER_S + 3) == t0 + 10 * UNITS_PER_S + 3
+
+
+def test_the_reservation_is_written_ahead_once_a_minute(tmp_path):
+    path = tmp_path / "t"
+    clock = Clock()
+    stamps = SigningTimestamps(path, clock)
+    reserve = int(RESERVE_S * UNITS_PER_S)
+    first = int(path.read_text())
+    assert first == stamps.start + reserve
+    clock.now += 30.0
+    stamps.advance(0)
+    assert int(path.read_text()) == first  # still ahead: not written again
+    clock.now += 30.0
+    now = stamps.advance(0)
+    assert int(path.read_text()) == now + reserve
+    assert SigningTimestamps(path, lambda: clock.now - 7200.0).start == now + reserve  # a restart starts above it
+    assert SigningTimestamps(path, lambda: clock.now + 7200.0).start == clock_timestamp(clock.now + 7200.0)
+
+
+def test_a_clock_before_2015_starts_from_the_stored_timestamp(tmp_path):
+    path = tmp_path / "t"
+    path.write_text("123456789\n")
+    assert SigningTimestamps(path, lambda: 0.0).start == 123456789
+    assert clock_timestamp(0.0) == 0
+
+
+@pytest.mark.parametrize("text", ["", "12ab", "-5", str(1 << 48)])
+def test_a_bad_state_file_is_named(tmp_path, text):
+    path = tmp_path / "t"
+    path.write_text(text)
+    with pytest.raises(ValueError, match="not a 48-bit timestamp; remove it"):
+        SigningTimestamps(path)
+
+
+@pytest.mark.parametrize("where, why", [("file/t", "cannot read it"), ("missing/t", "cannot write it")])
+def test_a_state_file_out_of_reach_stops_the_start(tmp_path, where, why):
+    (tmp_path / "file").write_text("")
+    with pytest.raises(OSError, match=f"signing timestamp file .*/{where}: {why}"):
+        SigningTimestamps(tmp_path / where)
+
+
+def test_a_failed_store_later_is_reported_and_signing_goes_on(tmp_path):
+    path = tmp_path / "state" / "t"
+    path.parent.mkdir()
+    clock = Clock()
+    stamps = SigningTimestamps(path, clock)
+    path.unlink()
+    path.parent.rmdir()  # the directory is gone: the next write fails
+    clock.now += 61.0
+    assert stamps.advance(0) == clock_timestamp(clock.now)
+    assert "cannot write it" in stamps.store_error
+    path.parent.mkdir()
+    clock.now += 1.0
+    stamps.advance(0)
+    assert stamps.store_error == "" and path.exists()
