@@ -434,3 +434,57 @@ def test_a_serial_radio_that_stops_draining_never_blocks_the_tick(tmp_path):
 def test_malformed_connections_are_refused_at_start_up(connection, message):
     with pytest.raises(ValueError, match=message):
         make_bridge(connection)
+
+
+def received_within(link, seconds=2.0) -> bytes:
+    data = b""
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline and not data.endswith(b"end"):
+        link.poll()
+        data += link.received()
+        time.sleep(0.01)
+    return data
+
+
+@pytest.mark.parametrize("kind", ["udpin", "udpout", "tcp", "serial"])
+def test_every_link_keeps_what_the_gcs_sent_until_taken(kind, tmp_path):
+    """The station parses the GCS's signed frames for their timestamps (gcs.signing): every link
+    hands over what came in, in order, once."""
+    closers = []
+    if kind == "udpin":
+        port = free_port(socket.SOCK_DGRAM)
+        link = link_module.open_transport(f"udpin:127.0.0.1:{port}")
+        gcs = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        closers.append(gcs.close)
+        send = lambda data: gcs.sendto(data, ("127.0.0.1", port))  # noqa: E731
+    elif kind == "udpout":
+        gcs = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        gcs.bind(("127.0.0.1", 0))
+        closers.append(gcs.close)
+        link = link_module.open_transport(f"udpout:127.0.0.1:{gcs.getsockname()[1]}")
+        link.write(b"hello")  # the GCS answers the address it heard from
+        peer = gcs.recvfrom(64)[1]
+        send = lambda data: gcs.sendto(data, peer)  # noqa: E731
+    elif kind == "tcp":
+        gcs = TcpGcs()
+        link = link_module.open_transport(f"tcp:127.0.0.1:{gcs.port}")
+        deadline = time.monotonic() + 2.0
+        while gcs.conn is None and time.monotonic() < deadline:
+            gcs.pump()
+        closers.append(lambda: gcs.go_away())
+        send = gcs.conn.sendall
+    else:
+        radio = Radio(tmp_path / "radio")
+        link = link_module.open_transport(str(radio.path))
+        closers.append(radio.unplug)
+        send = lambda data: os.write(radio.master, data)  # noqa: E731
+    try:
+        send(b"first ")
+        send(b"then the end")
+        assert received_within(link) == b"first then the end"
+        link.poll()
+        assert link.received() == b""
+    finally:
+        link.close()
+        for close in closers:
+            close()

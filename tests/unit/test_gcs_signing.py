@@ -183,3 +183,38 @@ def test_a_failed_store_later_is_reported_and_signing_goes_on(tmp_path):
     clock.now += 1.0
     stamps.advance(0)
     assert stamps.store_error == "" and path.exists()
+
+
+def gcs_heartbeat_heard(conn, sender, timeout=3.0):
+    """The GCS sends its own signed heartbeat to the station; True once the station has parsed it."""
+    before = sender.mav.signing.timestamp
+    conn.mav.heartbeat_send(6, 8, 0, 0, 4)  # a GCS's heartbeat, to the address the station sends from
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        sender.poll()
+        if sender.mav.signing.timestamp != before:
+            return True
+        time.sleep(0.01)
+    return False
+
+
+def test_a_station_whose_clock_is_behind_the_gcs_is_accepted_once_it_hears_the_gcs(gcs, key_file):
+    clock = Clock()
+    conn = gcs(clock.now + 600.0)  # the GCS's clock is 10 minutes ahead
+    sender = station(conn, key_file, clock)
+    assert heartbeats_taken(conn, sender) == 0  # a new stream 10 minutes behind the GCS: refused
+    assert gcs_heartbeat_heard(conn, sender)
+    assert sender.mav.signing.timestamp >= clock_timestamp(clock.now + 600.0)
+    assert heartbeats_taken(conn, sender) == 3
+    sender.close()
+
+
+def test_a_frame_signed_with_another_key_moves_nothing(gcs, key_file):
+    clock = Clock()
+    conn = gcs(clock.now + 600.0)
+    conn.mav.signing.secret_key = bytes(32)  # someone without the station's key
+    sender = station(conn, key_file, clock)
+    assert heartbeats_taken(conn, sender) == 0
+    assert not gcs_heartbeat_heard(conn, sender, timeout=0.5)
+    assert sender.mav.signing.timestamp < clock_timestamp(clock.now + 1.0)
+    sender.close()

@@ -13,7 +13,8 @@
 - ``/PATH[,BAUD]``: a serial device (a telemetry radio), 8N1 without flow control, 115200 baud
   unless given.
 
-Every descriptor is non-blocking. A frame the link cannot take whole now (closed, connecting,
+What comes in is kept for ``Link.received`` (the station reads the GCS's signed frames for their
+timestamps, ``gcs.signing``). Every descriptor is non-blocking. A frame the link cannot take whole now (closed, connecting,
 output full because the GCS or the radio stopped taking data, an error) is dropped and counted.
 On a stream, a frame the kernel took only in part is finished before any other, so the GCS never
 receives a cut frame. A TCP or serial link that fails (an error, the GCS closing it, the radio
@@ -86,6 +87,7 @@ class Link(ABC):
         self._last_error = ""
         self._outage = False  # frames dropped since the last one sent
         self._back = False  # a frame sent after an outage, not yet reported by poll()
+        self._received: list[bytes] = []  # what came in since the last received()
 
     @property
     @abstractmethod
@@ -121,6 +123,11 @@ class Link(ABC):
             self._failed(exc)
         back, self._back = self._back, False
         return back
+
+    def received(self) -> bytes:
+        """What came in, as read by the polls since the last call."""
+        data, self._received = b"".join(self._received), []
+        return data
 
     def _failed(self, exc: OSError) -> None:
         self._last_error = str(exc)
@@ -184,10 +191,11 @@ class DatagramLink(Link):
         now = time.monotonic()
         for _ in range(READS_PER_POLL):
             try:
-                _, peer = self._sock.recvfrom(READ_SIZE)
+                data, peer = self._sock.recvfrom(READ_SIZE)
             except BlockingIOError:
                 break
             self._peers[peer] = now
+            self._received.append(data)
         self._peers = {peer: heard for peer, heard in self._peers.items() if now - heard < PEER_SILENCE_S}
 
     def _poll_gcs(self) -> None:
@@ -199,7 +207,7 @@ class DatagramLink(Link):
         refused = heard = False
         for _ in range(READS_PER_POLL):
             try:
-                self._sock.recv(READ_SIZE)
+                self._received.append(self._sock.recv(READ_SIZE))
             except BlockingIOError:
                 break
             except ConnectionRefusedError:
@@ -258,6 +266,7 @@ class StreamLink(Link):
                     return
                 if not data:
                     raise ConnectionResetError("closed by the other end")
+                self._received.append(data)
 
     def _send(self, frame: bytes) -> bool:
         if not self.up:

@@ -116,7 +116,9 @@ def _landing_target(mav, usec: int, pose: LandingPose):
 class MavlinkSender:
     """The station's MAVLink output: heartbeat, position messages, status texts, over a link
     that never blocks or raises (``gcs.link``): what it cannot send is dropped and counted.
-    Signed, its timestamps follow ``clock`` (Unix seconds) and survive restarts (``gcs.signing``)."""
+    Signed, its timestamps follow ``clock`` (Unix seconds) and survive restarts (``gcs.signing``),
+    and rise to those of the GCS's signed frames, as pymavlink's parser takes them: a station whose
+    clock is behind the GCS's is then accepted once it has heard the GCS."""
 
     def __init__(self, cfg: MavlinkConfig, clock: Callable[[], float] = time.time):
         key = load_signing_key(cfg.signing_key_file) if cfg.signing_key_file else None
@@ -125,6 +127,11 @@ class MavlinkSender:
         self.link = open_transport(cfg.connection)
         start = self._stamps.start if self._stamps is not None else None
         self.mav = encoder(self.link, cfg.system_id, cfg.component_id, key, cfg.signing_link_id, start)
+        self._inbound = None  # parses what the GCS sends, with the station's signing state
+        if key is not None:
+            self._inbound = mav2.MAVLink(None)
+            self._inbound.robust_parsing = True
+            self._inbound.signing = self.mav.signing
 
     @property
     def stats(self) -> LinkStats:
@@ -141,8 +148,13 @@ class MavlinkSender:
         self.mav.send(msg)
 
     def poll(self) -> bool:
-        """Service the link (see ``Link.poll``): True once when it sends again after an outage."""
-        return self.link.poll()
+        """Service the link (see ``Link.poll``): True once when it sends again after an outage.
+        Signed, what came in is parsed: a frame with a good signature raises the timestamp."""
+        back = self.link.poll()
+        data = self.link.received()
+        if data and self._inbound is not None:
+            self._inbound.parse_buffer(data)
+        return back
 
     def send_pose(self, pose: LandingPose, stamp_s: float) -> list[str]:
         msgs = encode_pose(self.mav, self._cfg.messages, pose, stamp_s, self._cfg.odometry_frame)
