@@ -1,5 +1,8 @@
 """``camera.decode_compressed``: the frames image_transport's compressed plugin sends, and what it must refuse."""
 
+import struct
+import zlib
+
 import cv2
 import numpy as np
 import pytest
@@ -45,7 +48,26 @@ def test_grey_is_mono8_and_alpha_is_dropped():
     np.testing.assert_array_equal(pixels, bgra[..., :3])
 
 
+def _png_header(width: int, height: int) -> bytes:
+    """A PNG whose header claims ``width`` × ``height`` RGB pixels, with almost no pixel data."""
+    def chunk(kind, body):
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0))
+            + chunk(b"IDAT", zlib.compress(b"")) + chunk(b"IEND", b""))
+
+
+def _jpeg_header(width: int, height: int) -> bytes:
+    """A small JPEG whose frame header (SOF0) is rewritten to claim ``width`` × ``height``."""
+    data = bytearray(_encode(".jpg", np.zeros((8, 8, 3), np.uint8)))
+    sof = data.index(b"\xff\xc0")
+    data[sof + 5:sof + 9] = struct.pack(">HH", height, width)
+    return bytes(data)
+
+
 @pytest.mark.parametrize("data, fmt, message", [
+    # OpenCV raised cv2.error here, not a ValueError: one such frame stopped the undistort node.
+    (_png_header(40000, 40000), "png", "cannot decode the compressed image (65 bytes, format 'png'): OpenCV refused it ("),
+    (_jpeg_header(65000, 65000), "jpeg", "cannot decode the compressed image ("),
     (b"", "jpeg", "cannot decode the compressed image (0 bytes, format 'jpeg')"),
     (b"\xff\xd8\xff not really a jpeg", "jpeg", "cannot decode the compressed image (21 bytes"),
     (None, "16UC1; png compressed", "has uint16 pixels, expected 8-bit"),

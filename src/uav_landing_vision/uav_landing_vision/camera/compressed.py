@@ -17,7 +17,11 @@ def decode_compressed(data, fmt: str = "") -> tuple[np.ndarray, str]:
     if "compresseddepth" in fmt.lower().replace(" ", ""):
         raise ValueError(f"compressed image format '{fmt}' is a depth image, not a camera frame")
     buffer = np.frombuffer(bytes(data), np.uint8)
-    pixels = cv2.imdecode(buffer, cv2.IMREAD_UNCHANGED) if buffer.size else None
+    try:  # OpenCV raises (not None) for a header claiming more pixels than it will decode
+        pixels = cv2.imdecode(buffer, cv2.IMREAD_UNCHANGED) if buffer.size else None
+    except cv2.error as exc:
+        raise ValueError(f"cannot decode the compressed image ({len(buffer)} bytes, format '{fmt}'): "
+                         f"OpenCV refused it ({getattr(exc, 'err', exc)})") from exc
     if pixels is None or pixels.size == 0:
         raise ValueError(f"cannot decode the compressed image ({len(buffer)} bytes, format '{fmt}')")
     if pixels.dtype != np.uint8:
