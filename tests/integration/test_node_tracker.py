@@ -175,6 +175,8 @@ def test_malformed_input_is_dropped_and_tracking_goes_on(ros, generator):
     assert rig.send(3, mono) is None and "has no colour" in rig.node.last_error
     small = image_msg(np.zeros((30, 40, 3), np.uint8), "rgb8", *stamp(4))
     assert rig.send(4, small, hypotheses_msg(4)) is None and "image is 40x30" in rig.node.last_error
+    assert ros.spin_until(lambda: rig.node.last_error == f"hypotheses stamped {stamp_ns(hypotheses_msg(4).header.stamp)} "
+                          "ns have no image")  # the small image was dropped on arrival: its hypotheses wait alone
     dropped = rig.node.counters["dropped"]
     rig.hyp_pub.publish(boosted_msg(generator, 5))  # hypotheses whose image never comes
     assert ros.spin_until(lambda: rig.node.counters["dropped"] > dropped)
@@ -253,6 +255,45 @@ def test_a_replay_started_again_restarts_the_track(ros, generator):
         assert status is not None and status.state != TrackerStatus.LOST
     assert rig.node.counters["tracked"] == 6 and ros.spin_until(lambda: rig.pose_of(5) is not None)
     assert rig.status_of(3).state == TrackerStatus.ACQUIRING  # the track restarted
+
+
+def test_an_unusable_frame_never_restarts_the_track_and_a_restart_counts_what_it_drops(ros, generator):
+    """A frame stamped far behind the last tracked one starts a new time-line. It used to do so
+    before it was checked: a malformed image or one of the wrong size stamped 0 (a driver's
+    glitch) restarted the track and emptied the cache, and the frame waiting there for its
+    hypotheses was lost without being counted. Now such an image is dropped and nothing else
+    changes; a real restart counts the stamps it abandons."""
+    rig = Rig(ros)
+    rig.send_info()
+
+    def later(msg):  # the first run is stamped 5 s after the second
+        msg.header.stamp.sec += 5
+        return msg
+
+    for k in range(3):
+        rig.image_pub.publish(later(frame_msg(k)))
+        rig.hyp_pub.publish(later(boosted_msg(generator, k)))
+        assert ros.spin_until(lambda: rig.node.counters["tracked"] == k + 1)
+    rig.image_pub.publish(later(frame_msg(3)))  # waits for its hypotheses
+    assert ros.spin_until(lambda: len(rig.node._cache) == 1)
+    bad_step = frame_msg(0)
+    bad_step.step = 3
+    wrong_size = image_msg(np.zeros((120, 160, 3), np.uint8), "rgb8", *stamp(0))
+    for bad, why in ((bad_step, "step 3 is shorter than one row"), (wrong_size, "image is 160x120 but the calibration is 320x240")):
+        dropped = rig.node.counters["dropped"]
+        rig.image_pub.publish(bad)
+        assert ros.spin_until(lambda: rig.node.counters["dropped"] == dropped + 1) and why in rig.node.last_error
+    assert len(rig.node._cache) == 1 and rig.node._tracker.particles is not None
+    rig.hyp_pub.publish(later(boosted_msg(generator, 3)))
+    assert ros.spin_until(lambda: rig.node.counters["tracked"] == 4)
+    assert rig.status[-1].state == TrackerStatus.TRACKING  # the same track
+    rig.image_pub.publish(later(frame_msg(4)))  # waits for its hypotheses, then the replay starts again
+    assert ros.spin_until(lambda: len(rig.node._cache) == 1)
+    dropped = rig.node.counters["dropped"]
+    rig.image_pub.publish(frame_msg(0))
+    rig.hyp_pub.publish(boosted_msg(generator, 0))
+    assert ros.spin_until(lambda: rig.status_of(0) is not None) and rig.status_of(0).state == TrackerStatus.ACQUIRING
+    assert rig.node.counters["dropped"] == dropped + 1 and "1 stamp(s) of the old time-line" in rig.node.last_error
 
 
 def test_frames_resuming_after_a_gap_longer_than_the_prediction_restart_the_track(ros, generator):

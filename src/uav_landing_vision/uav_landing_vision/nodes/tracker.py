@@ -19,12 +19,13 @@ image waiting) is skipped and counted (``skipped``), so a camera faster than the
 no backlog of ever older frames (the motion model then predicts over the gap). Hypotheses whose
 image never came while a newer one did (lost from the image queue while the tracker was busy)
 count as skipped too. Frames due before the first
-calibration are held (``node.cache_size`` of them) and tracked once it comes. An image stamped more than
-2 s before the last tracked frame starts a new time-line (a replay or clock started again): the
-track restarts, where every later frame would otherwise be dropped as out of order. So does a frame
+calibration are held (``node.cache_size`` of them) and tracked once it comes. A usable image (checked
+first: encoding, layout, size) stamped more than 2 s before the last tracked frame starts a new
+time-line (a replay or clock started again): the track restarts, where every later frame would
+otherwise be dropped as out of order, and the stamps still waiting are dropped and counted. A frame
 tracked longer after the last one than the core's prediction reaches (``MAX_PREDICTION_STEPS`` Δt,
-~2 s: a camera that stalled): its carried particles are not of that frame's time, and its status
-would say TRACKING on them. Hypotheses without
+~2 s: a camera that stalled) restarts the track too: its carried particles are not of that
+frame's time, and its status would say TRACKING on them. Hypotheses without
 an image (none newer either), late ones and malformed ones (non-finite, non-unit quaternion: the frame is then
 tracked by prediction at once) are logged, counted and dropped. A frame the core cannot step
 with the current track (e.g. one started from finite but absurd hypotheses) restarts the track there.
@@ -135,24 +136,35 @@ class TrackerNode(LandingNode):
     def _on_image(self, msg: Image) -> None:
         self.counters["received"] += 1
         stamp = stamp_ns(msg.header.stamp)
+        try:  # checked first: only a frame the tracker can use may start a new time-line
+            frame = image_to_rgb(msg)
+        except ImageError as exc:
+            self.drop(str(exc))
+            return
+        if mismatch := self._size_mismatch(msg):
+            self.drop(mismatch)
+            return
         if self._last_stamp - stamp > RESTART_BEHIND_NS:
             self._restart_time_line(stamp)
         if stamp <= self._last_stamp:
             self.drop(f"image stamped {stamp} ns is not after the last tracked frame ({self._last_stamp} ns)")
             return
-        try:
-            frame = image_to_rgb(msg)
-        except ImageError as exc:
-            self.drop(str(exc))
-            return
         self._add("image", stamp, (msg, frame))
+
+    def _size_mismatch(self, image: Image) -> str:
+        """Why ``image`` does not fit the calibration in use, or "" (also without one yet)."""
+        if self._renderer is None or (image.width, image.height) == (self._renderer.width, self._renderer.height):
+            return ""
+        return f"image is {image.width}x{image.height} but the calibration is {self._renderer.width}x{self._renderer.height}"
 
     def _restart_time_line(self, stamp: int) -> None:
         self.get_logger().warning(
             f"image stamped {stamp} ns is {(self._last_stamp - stamp) * 1e-9:.1f} s before the last tracked frame: "
             "a new time-line (replay or clock restarted?); the track restarts")
         self._last_stamp = -1
-        self._cache = StampCache(self._cache.inputs, self._cache.size)
+        if waiting := self._cache.clear():
+            self.drop(f"{len(waiting)} stamp(s) of the old time-line still waiting for their pair, not tracked "
+                      "(the new time-line started)", count=len(waiting))
         if self._tracker is not None:
             self._tracker.reset()
 
@@ -213,8 +225,8 @@ class TrackerNode(LandingNode):
             self.hold(self._uncalibrated, (image, frame, boosted), self.node_config.cache_size,
                       self._calibration.waiting_for("no camera/camera_info_rect"))
             return
-        if (image.width, image.height) != (self._renderer.width, self._renderer.height):
-            self.drop(f"image is {image.width}x{image.height} but the calibration is {self._renderer.width}x{self._renderer.height}")
+        if mismatch := self._size_mismatch(image):  # a frame held from before this calibration
+            self.drop(mismatch)
             return
         stamp = stamp_ns(image.header.stamp)
         if stamp <= self._last_stamp:  # a restart below must never track a frame out of order
