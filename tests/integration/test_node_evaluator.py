@@ -32,7 +32,7 @@ REPORT_FILES = {"tables.txt", "translation_error.csv", "rotation_error.csv", "tr
 
 def truth_msg(k: int) -> PoseStamped:
     msg = PoseStamped()
-    msg.header.stamp.sec, msg.header.stamp.nanosec = 1, k * 33_000_000
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(1_000_000_000 + k * 33_000_000, 1_000_000_000)
     numpy_to_pose(msg.pose, [0.0, 0.0, 10.0 - k], QUAT)
     return msg
 

@@ -296,6 +296,28 @@ def test_an_unusable_frame_never_restarts_the_track_and_a_restart_counts_what_it
     assert rig.node.counters["dropped"] == dropped + 1 and "1 stamp(s) of the old time-line" in rig.node.last_error
 
 
+def test_a_malformed_stamp_is_dropped_before_it_can_shift_the_time_line(ros, generator):
+    """A stamp with nanosec >= 1e9 is malformed. Read as a time, (s, 1.5e9 ns) is 1.4 s after
+    the frames around it: tracked, it made the tracker drop every valid frame of the next 1.4 s as
+    out of order. Every node drops such a message before its callback (``LandingNode``)."""
+    rig = Rig(ros)
+    rig.send_info()
+    for k in range(3):
+        assert rig.send(k, frame_msg(k), boosted_msg(generator, k)) is not None
+    image, hyps = frame_msg(3), boosted_msg(generator, 3)
+    for msg in (image, hyps):
+        msg.header.stamp.nanosec += 1_500_000_000
+    dropped = rig.node.counters["dropped"]
+    rig.image_pub.publish(image)
+    rig.hyp_pub.publish(hyps)
+    assert ros.spin_until(lambda: rig.node.counters["dropped"] == dropped + 2)
+    assert "header stamp" in rig.node.last_error and "is malformed (nanosec must be below 1000000000)" in rig.node.last_error
+    assert rig.node.counters["tracked"] == 3 and rig.node.counters["received"] == 3
+    for k in range(4, 6):
+        status = rig.send(k, frame_msg(k), boosted_msg(generator, k))
+        assert status is not None and status.state == TrackerStatus.TRACKING
+
+
 def test_frames_resuming_after_a_gap_longer_than_the_prediction_restart_the_track(ros, generator):
     """The camera stalls for 5 s: the core predicts at most MAX_PREDICTION_STEPS Δt (~2 s) ahead,
     so the carried particles are not of the resumed frame's time. Its status must not say

@@ -210,28 +210,42 @@ def test_a_compressed_sequence_is_read_back_like_a_plain_one(tmp_path):
     assert np.array_equal(read_poses(packed).trans, read_poses(plain).trans)
 
 
-def test_frames_recorded_compressed_only_are_read_from_their_topic(tmp_path):
-    """A recording of image_transport's compressed frames (``/camera/image_raw/compressed``, PNG or
-    JPEG of the BGR pixels) is read where ``/camera/image_raw`` is asked for and absent, so
-    ``evaluate`` and ``eval-detector`` take it as the graph does."""
+def _compressed_recording(path, stamps) -> list[np.ndarray]:
+    """A bag of image_transport's compressed frames (PNG of the BGR pixels) only, one per
+    ``(sec, nanosec)`` header stamp; the frames as RGB."""
     from rosbags.rosbag2 import Writer
     from rosbags.typesys import Stores, get_typestore
 
     typestore = get_typestore(Stores.ROS2_JAZZY)
     compressed, header = typestore.types["sensor_msgs/msg/CompressedImage"], typestore.types["std_msgs/msg/Header"]
     stamp = typestore.types["builtin_interfaces/msg/Time"]
-    frames = [np.random.default_rng(i).integers(0, 256, (30, 40, 3), dtype=np.uint8) for i in range(3)]
-    with Writer(tmp_path / "bag", version=9) as writer:
+    frames = [np.random.default_rng(i).integers(0, 256, (30, 40, 3), dtype=np.uint8) for i in range(len(stamps))]
+    with Writer(path, version=9) as writer:
         conn = writer.add_connection("/camera/image_raw/compressed", "sensor_msgs/msg/CompressedImage", typestore=typestore)
-        for i, rgb in enumerate(frames):
+        for i, (rgb, (sec, nanosec)) in enumerate(zip(frames, stamps)):
             png = cv2.imencode(".png", rgb[..., ::-1])[1].ravel()
-            msg = compressed(header=header(stamp=stamp(sec=1 + i, nanosec=0), frame_id="cam"), format="rgb8; png compressed bgr8",
-                             data=png)
+            msg = compressed(header=header(stamp=stamp(sec=sec, nanosec=nanosec), frame_id="cam"),
+                             format="rgb8; png compressed bgr8", data=png)
             writer.write(conn, (1 + i) * 10**9, typestore.serialize_cdr(msg, conn.msgtype))
+    return frames
+
+
+def test_frames_recorded_compressed_only_are_read_from_their_topic(tmp_path):
+    """A recording of image_transport's compressed frames (``/camera/image_raw/compressed``, PNG or
+    JPEG of the BGR pixels) is read where ``/camera/image_raw`` is asked for and absent, so
+    ``evaluate`` and ``eval-detector`` take it as the graph does."""
+    frames = _compressed_recording(tmp_path / "bag", [(1 + i, 0) for i in range(3)])
     read = list(iter_frames(tmp_path / "bag"))
     assert [s for s, _ in read] == [(1 + i) * 10**9 for i in range(3)]
     for (_, image), rgb in zip(read, frames, strict=True):
         np.testing.assert_array_equal(image, rgb)
+
+
+def test_a_malformed_header_stamp_is_a_clear_error(tmp_path):
+    """Read as a time, (1 s, 1.5e9 ns) is 2.5 s, between its neighbours: no order check would notice."""
+    _compressed_recording(tmp_path / "bag", [(1, 0), (1, 1_500_000_000), (3, 0)])
+    with pytest.raises(ValueError, match=r"header stamp of 1 s \+ 1500000000 ns is malformed"):
+        list(iter_frames(tmp_path / "bag"))
 
 
 @pytest.mark.parametrize("storage", ["mcap", "sqlite3"])

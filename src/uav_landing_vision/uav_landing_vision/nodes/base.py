@@ -29,6 +29,7 @@ DIAGNOSTICS_PERIOD_S = 1.0
 SHUTDOWN_GRACE_S = 1.0  # an error out of the executor is a stop when the context goes down this soon
 TEARDOWN_LIMIT_S = 5.0  # a node's teardown taking longer has hung: the process ends (run_node)
 DROP_LOG_PERIOD_S = 1.0  # a kind of drop is logged at most this often
+NANOSECONDS_PER_SECOND = 1_000_000_000
 # Parameters every rclpy node declares itself; they are not part of a node's configuration.
 ROS_PARAMETERS = frozenset({"use_sim_time", "start_type_description_service"})
 # What an executor can raise when Ctrl-C / SIGTERM end a node (see stopped_by_shutdown).
@@ -39,7 +40,9 @@ class LandingNode(Node):
     """A node configured from its parameters that reports its counters on ``/diagnostics`` at 1 Hz.
 
     Subclasses count messages with ``self.counters[...] += 1`` and reject a bad message with
-    :meth:`drop`, which logs the reason, counts it and never raises.
+    :meth:`drop`, which logs the reason, counts it and never raises. A message whose header stamp
+    is malformed (``nanosec`` not below 1e9) is dropped before its subscription's callback: read as
+    a time, (s, 1.5e9 ns) would be half a second after (s + 1, 0) and alias a valid stamp.
     """
 
     def __init__(self, name: str, **kwargs):
@@ -53,6 +56,19 @@ class LandingNode(Node):
         self._image_participant = None  # made with the first image publisher
         # Steady time: diagnostics keep flowing when use_sim_time is set and /clock is paused.
         self.create_timer(DIAGNOSTICS_PERIOD_S, self.publish_diagnostics, clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    def create_subscription(self, msg_type, topic, callback, qos_profile, **kwargs):
+        """rclpy's, with messages of a malformed header stamp dropped before ``callback``."""
+
+        def checked(msg):
+            stamp = getattr(getattr(msg, "header", None), "stamp", None)
+            if stamp is not None and not stamp.nanosec < NANOSECONDS_PER_SECOND:
+                self.drop(f"{topic}: header stamp {stamp.sec} s + {stamp.nanosec} ns is malformed "
+                          f"(nanosec must be below {NANOSECONDS_PER_SECOND})")
+                return
+            callback(msg)
+
+        return super().create_subscription(msg_type, topic, checked, qos_profile, **kwargs)
 
     def create_image_publisher(self, msg_type, topic: str, qos):
         """A publisher of images from the node's second DDS participant (``participant.py``: sent
@@ -166,7 +182,7 @@ class LandingNode(Node):
 
 def stamp_ns(stamp) -> int:
     """A ``builtin_interfaces/Time`` as integer nanoseconds (the key of exact-time matching)."""
-    return stamp.sec * 1_000_000_000 + stamp.nanosec
+    return stamp.sec * NANOSECONDS_PER_SECOND + stamp.nanosec
 
 
 def run_node(factory, args=None, run=None) -> int:

@@ -135,7 +135,11 @@ def bag_messages(reader: Reader, connections=()):
 
 
 def _stamp(header) -> int:
-    return int(header.stamp.sec) * 10**9 + int(header.stamp.nanosec)
+    """A header's stamp in integer ns; :class:`BagError` for a malformed one (nanosec from 1e9 on)."""
+    sec, nanosec = int(header.stamp.sec), int(header.stamp.nanosec)
+    if not nanosec < 10**9:
+        raise BagError(f"a header stamp of {sec} s + {nanosec} ns is malformed (nanosec must be below 10^9)")
+    return sec * 10**9 + nanosec
 
 
 def _decode_image(msg) -> np.ndarray:
