@@ -447,6 +447,11 @@ def test_values_mavlink_cannot_carry_are_refused(bridge):
         bridge.on_pose(1.0, p_cam * 1e38, q_cam, COV, now_s=1.0)
     with pytest.raises(ValueError, match="float32"):
         bridge.on_pose(1.0, p_cam, q_cam, COV * 1e40, now_s=1.0)
+    cam = CONFIG.camera  # pitched up to 89.9999°: the Euler covariance of a huge one overflows to NaN, which max() let by
+    p_cam, q_cam = camera_pose_from_truth(cam.position_m, cam.rpy, CONFIG.net_position_m, on_axis(40.0),
+                                          (0.0, math.radians(89.9999), 0.0))
+    with pytest.raises(ValueError, match="float32"):
+        bridge.on_pose(1.0, p_cam, q_cam, np.eye(6) * 1e306, now_s=1.0)
     assert bridge.tick(1.01).sent == ("HEARTBEAT",) and not bridge.sender.poses
 
 

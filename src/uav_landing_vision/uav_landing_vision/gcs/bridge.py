@@ -98,7 +98,8 @@ class GcsBridge:
         pose = camera_to_landing(position_cam, quat_cam, covariance, self._deck)
         mavlink_covariance = euler_covariance(pose)  # undefined at pitch ±90°: ValueError
         # The distance bounds every coordinate sent, LANDING_TARGET's body-frame ones and distance too.
-        if max(np.linalg.norm(pose.position), np.abs(mavlink_covariance).max()) > FLOAT32_MAX:
+        # Not max(): a NaN (inf × 0 in the Euler Jacobian of a huge covariance near ±90° pitch) would pass it.
+        if not np.all(np.abs(mavlink_covariance) <= FLOAT32_MAX) or np.linalg.norm(pose.position) > FLOAT32_MAX:
             raise ValueError("pose position or covariance exceeds MAVLink's float32 range")
         self._forget_pose_ahead_of(now_s)
         if stamp_s <= max(self._stamp, self._pending_stamp) or now_s - stamp_s > self._cfg.stale_timeout_s:
