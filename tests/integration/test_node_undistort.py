@@ -167,6 +167,17 @@ def test_a_new_calibration_replaces_the_old_one(ros):
     np.testing.assert_array_equal(image_to_numpy(rect), _expected(other, pixels))
 
 
+def test_nearest_interpolation_keeps_every_pixel_of_a_lens_without_distortion(ros):
+    """cv2.remap's nearest neighbour on fixed-point maps (what undistortion_maps gives) took the
+    next pixel for fractions below one half: a lens without distortion came out shifted by one
+    pixel right and down (OpenCV issue 24106)."""
+    rig = Rig(ros, parameter_overrides=[Parameter("interpolation", value="nearest")])
+    lens = type(SMALL_CAMERA)(SMALL_CAMERA.width, SMALL_CAMERA.height, SMALL_CAMERA.K, np.zeros(5))
+    rig.send_info(lens)
+    pixels = rgb_frame(lens, 5)
+    np.testing.assert_array_equal(image_to_numpy(rig.send_image(image_msg(pixels, "rgb8"))), pixels)
+
+
 @pytest.mark.parametrize("model, d", [("equidistant", [-0.05, 0.01, -0.002, 0.0005]),
                                       ("rational_polynomial", [0.12, -0.05, 0.001, -0.002, 0.01, 0.35, -0.02, 0.004])])
 def test_a_fisheye_or_rational_lens_is_rectified_by_its_own_model(ros, model, d):

@@ -76,6 +76,8 @@ class Undistort(LandingNode):
     def _use_camera(self, camera) -> None:
         try:
             maps = camera.undistortion_maps()
+            if self.config.interpolation == "nearest":  # on fixed-point maps OpenCV's nearest takes the
+                maps = cv2.convertMaps(*maps, cv2.CV_32FC1)  # next pixel half the time (opencv#24106)
         except (cv2.error, MemoryError) as exc:
             raise CameraInfoError(f"cannot build the {camera.width}x{camera.height} remap tables: {exc}") from exc
         self._camera, self._maps = camera, maps
