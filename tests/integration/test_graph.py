@@ -10,6 +10,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+import rclpy
+import rclpy.node
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from rclpy.serialization import serialize_message
 from rosbags.rosbag2 import CompressionMode, Writer
@@ -320,3 +322,18 @@ def _catches(pid: int, sig: int) -> bool:
         return False
     caught = int(next(line.split()[1] for line in status.splitlines() if line.startswith("SigCgt:")), 16)
     return bool(caught >> (sig - 1) & 1)
+
+
+@pytest.mark.parametrize("path", ["/data/landings/run #3/bag", "/data/landing: day 2/bag", "/data/ünïcode 'quoted' \"bag\""])
+def test_a_bag_path_reaches_the_player_whole(path):
+    """rcl reads a ``-p key:=value`` override as YAML: a bare path was cut at " #" (the player then
+    played another bag, if one was there) or refused at ": "."""
+    (key, value), = [kv for kv in graph_module.replay_overrides(["bag_player"], path)["bag_player"] if kv[0] == "bag"]
+    context = rclpy.Context()
+    rclpy.init(args=["node", "--ros-args", "-p", f"{key}:={value}"], context=context)
+    try:
+        node = rclpy.node.Node("player", context=context, automatically_declare_parameters_from_overrides=True)
+        assert node.get_parameter("bag").value == str(Path(path).resolve())
+        node.destroy_node()
+    finally:
+        context.try_shutdown()

@@ -70,13 +70,13 @@ def graph_overrides(bag: Path, report_dir: Path, sequence: str) -> dict:
     """Per-node parameter overrides of a graph that replays ``bag`` frame by frame (paced on
     the tracker's status, nothing dropped, once every link of the graph is up, every node on the
     bag's time) and writes the evaluator's report to ``report_dir``."""
-    from .graph import GRAPH_NODES, replay_overrides, replay_ready_topics
+    from .graph import GRAPH_NODES, replay_overrides, replay_ready_topics, string_parameter
     from .tracking.upf import load_tracker_config
 
     tracker = load_tracker_config()
     overrides = replay_overrides(GRAPH_NODES, bag, replay_ready_topics(bag))
     overrides["bag_player"].append(("mode", "paced"))  # on the tracker's status (replay_overrides)
-    overrides["evaluator"] += [("out_dir", str(report_dir)), ("sequence", sequence),
+    overrides["evaluator"] += [("out_dir", string_parameter(report_dir)), ("sequence", string_parameter(sequence)),
                                ("variant", f"{tracker.variant}N{tracker.iterations}")]
     return overrides
 

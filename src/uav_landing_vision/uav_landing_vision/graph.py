@@ -18,6 +18,7 @@ on them; ``--param`` can still set either.
 This module imports no ROS module: the nodes do, in their own processes.
 """
 
+import json
 import os
 import signal
 import subprocess
@@ -67,6 +68,12 @@ TRACKER_ACK = (("ack_topic", "uav/tracker_status"), ("ack_type", "uav_landing_ms
 _CLEAN_EXIT = (0, -signal.SIGINT, 128 + signal.SIGINT)
 _POLL_S = 0.1
 STACK_DUMP_S = 1.0  # a hung node's time to print its stacks (SIGUSR1) before SIGKILL
+
+
+def string_parameter(value) -> str:
+    """``value`` as a string for a ``-p key:=value`` override, which rcl reads as YAML: quoted, so
+    that a path with " #" is not cut at its comment or one with ": " refused."""
+    return json.dumps(str(value))
 
 
 def ready_topics_parameter(topics=PIPELINE_TOPICS) -> str:
@@ -138,7 +145,7 @@ def replay_overrides(names, bag, ready_topics=None) -> dict:
     the evaluator then never counts) are lost to the nodes still starting. With the tracker in
     the graph, a paced player waits for its status (:data:`TRACKER_ACK`)."""
     overrides = {n: [] if n == PLAYER else [("use_sim_time", "true")] for n in names}
-    overrides[PLAYER] += [("bag", str(Path(bag).resolve())), ("clock", "true")]
+    overrides[PLAYER] += [("bag", string_parameter(Path(bag).resolve())), ("clock", "true")]
     if "tracker" in names:
         overrides[PLAYER] += list(TRACKER_ACK)
     if ready_topics is not None:
