@@ -139,8 +139,8 @@ class CameraModel:
     def distortion_maps(self) -> tuple[np.ndarray, np.ndarray]:
         """``cv2.remap`` float maps that turn a rectified image into the raw (distorted) image.
 
-        For each raw pixel they give the rectified pixel it sees, by the forward model
-        (:meth:`distort_normalised`) after inverting the pixel to its normalised ray with OpenCV's iterative undistortion.
+        For each raw pixel they give the rectified pixel it sees: :meth:`undistort_points`, OpenCV's
+        iterative inversion of the lens model.
         """
         u, v = np.meshgrid(np.arange(self.width, dtype=float), np.arange(self.height, dtype=float))
         rect = self.undistort_points(np.stack([u, v], axis=-1))
