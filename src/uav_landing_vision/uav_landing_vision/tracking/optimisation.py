@@ -2,7 +2,8 @@
 
 An objective is ``score(ParticleSet) -> (M,)`` non-negative likelihoods, higher is better,
 evaluated for the whole batch in one call (one batched render). Every optimiser calls it
-exactly once per iteration and returns a set whose weights are the scores of its poses.
+once per iteration (GAbF may end before the last one) and returns a set whose weights are the
+scores of its poses.
 Only poses change; velocities and per-particle filter state stay with their particle.
 
 Rotations stay on the unit sphere: a pose increment is a body-frame rotation vector ``r``

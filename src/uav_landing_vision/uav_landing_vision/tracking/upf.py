@@ -256,9 +256,10 @@ def depth_prior(depth: np.ndarray, anchor: float, sigma: float, floor: float) ->
 
 def rotation_prior(quats: np.ndarray, anchor: np.ndarray, sigma_rad: float, floor: float) -> np.ndarray:
     """Ours (not in the thesis): ``floor + (1 − floor)·exp(−½(θ/σ)²)`` of each rotation's geodesic
-    angle θ to the anchor (the last frame's published rotation), ``q`` and ``−q`` alike. A landing
-    aircraft turns by a few degrees between frames; near the ship the colour metric scores turned
-    silhouettes close to the true one, and without a prior the particles can walk 10° a frame."""
+    angle θ to the anchor (the last frame's refined rotation, before the rotation window), ``q``
+    and ``−q`` alike. A landing aircraft turns by a few degrees between frames; near the ship the
+    colour metric scores turned silhouettes close to the true one, and without a prior the
+    particles can walk 10° a frame."""
     u = geodesic_angle(quats, anchor) / sigma_rad
     return floor + (1.0 - floor) * np.exp(-0.5 * u * u)
 
@@ -327,9 +328,8 @@ class Tracker:
         self.config = config
         self.likelihood = make_likelihood(config.metric, renderer, config.colour if config.metric == "colour" else None)
         self.optimiser = make_optimiser(config.optimiser, config.pfo)
-        self.rng = np.random.default_rng(np.random.SeedSequence(config.seed))
         self.refinement = RotationRefinement(config.refine)
-        self._refine_rng = np.random.default_rng(np.random.SeedSequence(config.seed).spawn(1)[0])
+        self._seed()
         self.monitor = TrackMonitor(config.track)
         self.particles: ParticleSet | None = None  # the last frame's set, best first
         self.filters = MotionBank(config.motion) if config.uses_filters else None
@@ -354,10 +354,17 @@ class Tracker:
 
     def reset(self) -> None:
         """Forget the track (the next frame with hypotheses re-initialises it) and the last
-        stamp (a new time-line)."""
+        stamp (a new time-line), and draw again from the seed: a replay started again gives the
+        estimates of the first time."""
         self._drop_track()
+        self._seed()
         self._last_stamp_ns = None
         self._last_frame, self._repeated = None, 0
+
+    def _seed(self) -> None:
+        """The random generators as the seed starts them (the refinement's has its own stream)."""
+        self.rng = np.random.default_rng(np.random.SeedSequence(self.config.seed))
+        self._refine_rng = np.random.default_rng(np.random.SeedSequence(self.config.seed).spawn(1)[0])
 
     def _drop_track(self) -> None:
         """Forget the track (LOST); frames must still come after the last one."""
