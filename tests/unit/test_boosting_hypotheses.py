@@ -136,6 +136,11 @@ def test_generator_counts_and_errors(camera):
     assert gen.generate(frame, wide) is None
     thesis = PoseHypothesisGenerator(db, camera, HypothesisConfig(particles=40, kept=30, min_roi_cover=0.0))
     assert len(thesis.generate(frame, wide)) == 10
+    # no hypotheses from a ROI within FAST's radius (3 px) of an edge; at 4 px, some
+    inside = np.full_like(frame, 200)
+    inside[300:340, camera.width - 160:camera.width - 10] = 60
+    assert gen.generate(inside, (camera.width - 165, 290, 162, 60)) is None  # 3 px from the right edge
+    assert len(gen.generate(inside, (camera.width - 165, 290, 161, 60))) == 10  # 4 px
     bare = PoseHypothesisGenerator(db, camera, HypothesisConfig(particles=40, kept=30, roi_margin=0.0, roi_pad_px=0.0))
     assert bare.generate(frame, (500, 300, 200, 40), count=1) is None  # ungrown: no corner in reach
     with pytest.raises(ValueError, match="camera is"):
@@ -162,3 +167,26 @@ def test_generator_from_config_loads_the_shipped_database(camera):
     assert len(gen.database) == 11000 and gen.database.aspect_weight == 3.0
     with pytest.raises(ValueError, match="not found"):
         PoseHypothesisGenerator.from_config(HypothesisConfig(database="/nonexistent/db.npz"), camera)
+
+
+def test_a_uav_cut_by_the_frame_edge_gives_no_hypotheses(camera):
+    """Its ROI is cut by the edge like its box, so the box passed min_roi_cover, and its depth
+    (4.5) came out 48 % too far (22 m for 15 m)."""
+    from uav_landing_vision.boosting.database import NOMINAL_QUAT
+
+    db = PoseDatabase.load(model_file("pose_database.npz"), camera=camera)
+    gen = PoseHypothesisGenerator(db, camera, HypothesisConfig())
+    quat = (Rotation.from_euler("xyz", [10, -15, 5], degrees=True) * Rotation.from_quat(NOMINAL_QUAT)).as_quat()
+    renderer = Renderer(camera, fixed_wing_mesh("high"))
+
+    def shot(x_m):
+        mask = renderer.silhouette_full(quat, np.array([x_m, 0.0, 15.0]))
+        frame = np.full((camera.height, camera.width, 3), 190, np.uint8)
+        frame[mask] = 50
+        ys, xs = np.nonzero(mask)
+        return frame, (xs.min(), ys.min(), xs.max() + 1 - xs.min(), ys.max() + 1 - ys.min())
+
+    assert gen.generate(*shot(0.0), count=25) is not None  # whole, on the axis
+    frame, roi = shot(-8.9)  # half of it left of the frame
+    assert roi[0] == 0 and gen.generate(frame, roi, count=25) is None
+    renderer.release()

@@ -20,6 +20,8 @@ from ..geometry.quaternion import quat_multiply
 from .database import ASPECT_WEIGHT, DEFAULT_FILE, PoseDatabase
 from .obb import THETA_PERIOD_DEG, FastConfig, Obb, check_roi, obb_from_frame
 
+FAST_RADIUS_PX = 3  # FAST's ring: no corner is found closer than this to the image's edge
+
 
 @dataclass(frozen=True)
 class HypothesisConfig:
@@ -37,6 +39,11 @@ class HypothesisConfig:
     this fraction of the ROI's longer side. Such a box holds only part of the UAV (the fuselage
     of a near UAV whose wings give no corners, or a far UAV's brightest spot), and its depth
     (4.5) is off by 34–746 % on the simulated landings, against 3–34 % for the other boxes.
+
+    Nor are there hypotheses when the ROI reaches within :data:`FAST_RADIUS_PX` of the frame's
+    edge (ours): the UAV may run off the frame there, or its outermost corners cannot be found,
+    and the ROI is cut like the box, so ``min_roi_cover`` passes a partial UAV whose depth (4.5)
+    comes out far too far (22 m for 15 m with half the UAV out of the frame).
     """
 
     particles: int = 100
@@ -140,13 +147,16 @@ class PoseHypothesisGenerator:
 
     def generate(self, frame: np.ndarray, roi, first_frame: bool = False, count: int | None = None) -> Hypotheses | None:
         """Hypotheses for the rectified ``frame`` and ROI ``(x, y, w, h)`` (grown as configured):
-        ``count`` of them (default M at the first frame, M − M0 otherwise); None if no box is
-        found in the ROI or it spans less than ``min_roi_cover`` of the ROI's longer side."""
+        ``count`` of them (default M at the first frame, M − M0 otherwise); None if the ROI
+        reaches the frame's edge, if no box is found in it, or if the box spans less than
+        ``min_roi_cover`` of the ROI's longer side."""
         frame = np.asarray(frame)
         if frame.shape[:2] != (self.camera.height, self.camera.width):
             raise ValueError(f"frame is {frame.shape[1]}x{frame.shape[0]}, camera is {self.camera.width}x{self.camera.height}")
+        x, y, w, h = check_roi(roi, self.camera.width, self.camera.height)
+        if min(x, y, self.camera.width - (x + w), self.camera.height - (y + h)) <= FAST_RADIUS_PX:
+            return None
         obb = obb_from_frame(frame, roi, self.config.fast, self.config.roi_margin, self.config.roi_pad_px)
-        _, _, w, h = check_roi(roi, self.camera.width, self.camera.height)
         if obb is None or obb.w < self.config.min_roi_cover * max(w, h):
             return None
         k = self.config.count(first_frame) if count is None else count
