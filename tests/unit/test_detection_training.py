@@ -161,10 +161,14 @@ def test_runtime_on_the_exported_model(exported):
     assert lb.pad_y == 12
     np.testing.assert_allclose(result.boxes[0], [0, 0, 16, 8])
     assert np.all(result.boxes >= 0) and np.all(result.boxes[:, 2:] <= [1280, 720])
+    # full resolution in the window; the boxes of its first row and column reach its sides
+    # inside the frame, where it may cut the UAV: dropped
     windowed = det.detect(frame, window=(100, 200, 192, 192))
-    np.testing.assert_allclose(windowed.boxes[0], [100, 200, 108, 208])  # full resolution in the window
+    np.testing.assert_allclose(windowed.boxes[0], [108, 208, 116, 216])
     grown = det.detect(frame, window=(100, 200, 200, 180))  # grown to 224 × 192 from the frame itself
-    np.testing.assert_allclose(grown.boxes[0], [88, 194, 96, 202])
+    np.testing.assert_allclose(grown.boxes[0], [96, 202, 104, 210])
+    corner = det.detect(frame, window=(0, 0, 192, 192))  # the frame's own sides cut nothing
+    np.testing.assert_allclose(corner.boxes[0], [0, 0, 8, 8])
     with pytest.raises(ValueError, match="uint8"):
         det.detect(frame.astype(np.float32))
 

@@ -256,7 +256,10 @@ class Detector:
 
         The window is first grown to whole network cells from the image around it; what the
         image cannot give is padded with its border pixels, not the grey of the full-frame
-        letterbox: at full resolution a grey band looks like a box to the network."""
+        letterbox: at full resolution a grey band looks like a box to the network. A box that
+        reaches a side of the window inside the frame (within half the finest cell) is dropped:
+        the window may cut the UAV there, and a cut box, scored as a whole one, would give its
+        depth (4.5) far too far."""
         image = check_image(image)
         height, width = image.shape[:2]
         if window is None:
@@ -268,7 +271,10 @@ class Detector:
             window = check_roi(window, width, height)
             ox, oy, ww, wh = grow_to_multiple(window, width, height, max(self.strides))
             boxes, scores = self._infer(image[oy : oy + wh, ox : ox + ww], 1.0, cv2.BORDER_REPLICATE)
-            boxes += np.array([ox, oy, ox, oy], np.float32)
+            near = min(self.strides) / 2  # a cut box ends about at the side, within half the finest cell
+            cut = (boxes[:, 0] <= near) & (ox > 0) | (boxes[:, 1] <= near) & (oy > 0)
+            cut |= (boxes[:, 2] >= ww - near) & (ox + ww < width) | (boxes[:, 3] >= wh - near) & (oy + wh < height)
+            boxes, scores = boxes[~cut] + np.array([ox, oy, ox, oy], np.float32), scores[~cut]
         cfg = self.config
         accept = None
         if self.verifier is not None:  # on the whole frame: the context it was trained on
