@@ -136,6 +136,17 @@ def test_fast_box_of_a_drawn_rectangle_over_a_gradient():
     assert box.h == pytest.approx(50.0, abs=6.0)
 
 
+def test_pixel_extent_measures_the_corners_as_the_database_measures_its_masks():
+    """A filled 40 x 10 block: its mask's box is 40 x 10 (obb_from_mask, as the database's), the
+    FAST box through its corner pixels' centres 39 x 9, and with ``pixel_extent`` 40 x 10."""
+    frame = np.full((60, 80), 200, np.uint8)
+    frame[25:35, 20:60] = 40
+    assert obb_from_mask(frame == 40)[3:] == pytest.approx((40.0, 10.0))
+    assert obb_from_frame(frame, (10, 15, 60, 30))[3:] == pytest.approx((39.0, 9.0))
+    extent = obb_from_frame(frame, (10, 15, 60, 30), FastConfig(pixel_extent=True))
+    assert extent[1:] == pytest.approx((39.5, 29.5, 40.0, 10.0))
+
+
 def test_flat_roi_or_too_few_corners_has_no_box():
     frame = np.full((100, 100), 128, np.uint8)
     assert obb_from_frame(frame, (10, 10, 50, 50)) is None
