@@ -13,9 +13,10 @@
 - ``/PATH[,BAUD]``: a serial device (a telemetry radio), 8N1 without flow control, 115200 baud
   unless given.
 
-What comes in is kept for ``Link.received`` (the station reads the GCS's signed frames for their
-timestamps, ``gcs.signing``). Every descriptor is non-blocking. A frame the link cannot take whole now (closed, connecting,
-output full because the GCS or the radio stopped taking data, an error) is dropped and counted.
+What comes in is kept for ``Link.received`` (the station reads the GCS's signed frames for
+their timestamps, ``gcs.signing``). Every descriptor is non-blocking. A frame the link cannot
+take whole now (closed, connecting, output full because the GCS or the radio stopped taking
+data, an error) is dropped and counted.
 On a stream, a frame the kernel took only in part is finished before any other, so the GCS never
 receives a cut frame. A TCP or serial link that fails (an error, the GCS closing it, the radio
 unplugged) is closed and reopened at most once every ``REOPEN_PERIOD_S``; a TCP connection left
