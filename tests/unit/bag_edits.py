@@ -33,3 +33,17 @@ def rename_topics(bag: Path, out: Path, names: dict) -> None:
                  for c in reader.connections}
         for conn, t_ns, raw in reader.messages():
             writer.write(conns[conn.id], t_ns, raw)
+
+
+def drop_messages(bag: Path, out: Path, topic: str) -> None:
+    """``bag`` copied to ``out`` without the messages of ``topic`` (its connection kept), as a
+    recording during which that driver sent nothing."""
+    from rosbags.rosbag2 import Reader, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    with Reader(bag) as reader, Writer(out, version=9) as writer:
+        typestore = get_typestore(Stores.ROS2_JAZZY)
+        conns = {c.id: writer.add_connection(c.topic, c.msgtype, typestore=typestore) for c in reader.connections}
+        for conn, t_ns, raw in reader.messages():
+            if conn.topic != topic:
+                writer.write(conns[conn.id], t_ns, raw)

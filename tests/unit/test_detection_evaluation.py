@@ -4,7 +4,7 @@ refused; a recording of other topic names is read with ``--remap``."""
 
 import numpy as np
 import pytest
-from bag_edits import record_frame_twice, rename_topics
+from bag_edits import drop_messages, record_frame_twice, rename_topics
 
 from uav_landing_vision.detection.detector import DetectorConfig
 from uav_landing_vision.detection.evaluation import evaluate_bag, label_frame, match_frame, summarise
@@ -62,7 +62,7 @@ def test_boxes_down_to_an_operating_threshold_below_the_curve_floor_are_counted(
     r = evaluate_bag(tmp_path / "bag", DetectorConfig(score_threshold=0.005), tmp_path / "out.json", progress=False)
     assert r["frames"] == 2 and r["threshold"] == 0.005
     assert r["false_positives_per_100_frames"] == 100.0 and r["precision"] == 0.0
-    assert r["curve"]["thresholds"] == pytest.approx([0.007, 0.007])
+    assert r["curve"]["thresholds"] == pytest.approx([0.007])  # both frames' boxes: one point of the curve
 
 
 def test_the_time_per_frame_is_that_of_the_detector_as_configured(tmp_path, monkeypatch):
@@ -111,7 +111,7 @@ def test_the_operating_point_is_that_of_the_detector_as_configured(tmp_path, mon
     r = evaluate_bag(tmp_path / "bag", config, tmp_path / "out.json", progress=False)
     assert r["false_positives_per_100_frames"] == 200.0  # 2 boxes a frame, not the curve's 5
     assert r["best_box_false_positives_per_100_frames"] == 100.0
-    assert len(r["curve"]["thresholds"]) == 10  # the curve still sees every box
+    assert len(r["curve"]["thresholds"]) == 5  # the curve still sees every box: both frames' five scores
 
 
 def _brute_force_ap(scores, tp, n_gt):
@@ -127,9 +127,13 @@ def test_average_precision_matches_a_brute_force_oracle():
     from uav_landing_vision.detection.evaluation import average_precision
 
     rng = np.random.default_rng(0)
-    for _ in range(300):
+    for k in range(600):
         n = int(rng.integers(1, 15))
-        scores, tp = rng.permutation(n) / n + 0.01, rng.random(n) < 0.5  # distinct scores
+        if k % 2:  # distinct scores
+            scores = rng.permutation(n) / n + 0.01
+        else:  # ties: boxes of one score pass a threshold together, in whatever order the frames came
+            scores = rng.integers(1, 4, n) / 4
+        tp = rng.random(n) < 0.5
         n_gt = int(tp.sum() + rng.integers(0, 3))
         if n_gt:
             assert average_precision(scores, tp, n_gt)[0] == pytest.approx(_brute_force_ap(scores, tp, n_gt), abs=1e-12)
@@ -202,3 +206,13 @@ def test_a_recording_of_other_topic_names_is_read_with_remap(tmp_path, capsys):
     renamed, plain = (json.loads((tmp_path / f"{n}.json").read_text()) for n in ("r", "p"))
     assert {k: v for k, v in renamed.items() if k not in ("ms_per_frame", "bag")} == {
         k: v for k, v in plain.items() if k not in ("ms_per_frame", "bag")}
+
+
+def test_a_recording_without_frames_is_a_clear_error(tmp_path):
+    """It failed inside numpy ("need at least one array to concatenate")."""
+    from uav_landing_vision.sim import load_scenario, simulate
+
+    simulate(load_scenario("normal"), tmp_path / "bag", frames=2, progress=False)
+    drop_messages(tmp_path / "bag", tmp_path / "no_frames", "/camera/image_raw")
+    with pytest.raises(ValueError, match=r"no_frames: no frames on /camera/image_raw"):
+        evaluate_bag(tmp_path / "no_frames", DetectorConfig(), tmp_path / "out.json", progress=False)

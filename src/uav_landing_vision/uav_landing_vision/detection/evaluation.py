@@ -41,15 +41,18 @@ def match_frame(boxes: np.ndarray, scores: np.ndarray, gt: np.ndarray, iou: floa
 
 
 def average_precision(scores: np.ndarray, tp: np.ndarray, n_gt: int):
-    """Area under the all-point interpolated PR curve: ``(ap, precision, recall, thresholds)``."""
+    """Area under the all-point interpolated PR curve: ``(ap, precision, recall, thresholds)``,
+    one point per distinct score (detections of equal scores pass a threshold together: one
+    point each made the AP depend on the frames' order)."""
     order = np.argsort(-np.asarray(scores), kind="stable")
-    tp = np.asarray(tp, bool)[order]
-    ctp, cfp = np.cumsum(tp), np.cumsum(~tp)
+    tp, thresholds = np.asarray(tp, bool)[order], np.asarray(scores)[order]
+    last = np.append(thresholds[1:] != thresholds[:-1], True) if len(thresholds) else np.zeros(0, bool)
+    ctp, cfp, thresholds = np.cumsum(tp)[last], np.cumsum(~tp)[last], thresholds[last]
     recall = ctp / max(n_gt, 1)
     precision = ctp / np.maximum(ctp + cfp, 1)
     envelope = np.maximum.accumulate(precision[::-1])[::-1] if len(precision) else precision
     steps = np.diff(np.concatenate([[0.0], recall]))
-    return float(np.sum(steps * envelope)) if n_gt else 0.0, precision, recall, np.asarray(scores)[order]
+    return float(np.sum(steps * envelope)) if n_gt else 0.0, precision, recall, thresholds
 
 
 def summarise(frames: list[dict], threshold: float) -> dict:
@@ -179,6 +182,8 @@ def evaluate_bag(bag, config, json_path, png_path=None, progress: bool = True, t
         frame.update(boxes=det.boxes, scores=det.scores, kept_boxes=kept.boxes, kept_scores=kept.scores,
                      ms=1000.0 * (time.perf_counter() - t0))
         frames.append(frame)
+    if not frames:
+        raise ValueError(f"{bag}: no frames on {image_topic}")
     result = summarise(frames, config.score_threshold)
     result.update(bag=str(bag), model=str(config.model), verifier=str(config.verifier),
                   verifier_threshold=config.verifier_threshold, truth_box=truth_box)
