@@ -6,13 +6,19 @@ would have set it at that moment.
 """
 
 import dataclasses
+import os
+import socket
+import threading
 import time
 
 import pytest
 from test_gcs_landing import CONFIG
 
 from uav_landing_vision.gcs.mavlink import MavlinkSender, open_link
-from uav_landing_vision.gcs.signing import RESERVE_S, UNITS_PER_S, SigningTimestamps, clock_timestamp
+from uav_landing_vision.gcs import signing
+from uav_landing_vision.gcs.signing import (
+    LAST_TIMESTAMP, RENEW_S, RESERVE_S, UNITS_PER_S, SigningTimestamps, clock_timestamp,
+)
 
 KEY = bytes(range(32))
 
@@ -130,21 +136,60 @@ def test_stamps_follow_the_clock_and_never_go_back(tmp_path):
     assert stamps.advance(t0 + 10 * UNITS_PER_S + 3) == t0 + 10 * UNITS_PER_S + 3
 
 
-def test_the_reservation_is_written_ahead_once_a_minute(tmp_path):
+def test_the_reservation_is_renewed_ahead_by_a_thread_of_its_own(tmp_path, monkeypatch):
+    """Written, flushed, renamed and the rename flushed (the folder's fsync), by the writer thread
+    once the stamps are RENEW_S from the stored reservation: a disk slow to flush (seconds, with
+    a bag being recorded on it) must not hold up the bridge's tick."""
+    flushed = []
+
+    def fsync(fd):
+        flushed.append((os.readlink(f"/proc/self/fd/{fd}"), threading.current_thread() is threading.main_thread()))
+        real_fsync(fd)
+
+    real_fsync = os.fsync
+    monkeypatch.setattr(signing.os, "fsync", fsync)
     path = tmp_path / "t"
     clock = Clock()
     stamps = SigningTimestamps(path, clock)
     reserve = int(RESERVE_S * UNITS_PER_S)
     first = int(path.read_text())
     assert first == stamps.start + reserve
-    clock.now += 30.0
+    assert [name for name, _ in flushed] == [str(path) + ".tmp", str(tmp_path)]  # the file, then its rename
+    flushed.clear()
+    clock.now += RESERVE_S - RENEW_S - 1.0
     stamps.advance(0)
-    assert int(path.read_text()) == first  # still ahead: not written again
-    clock.now += 30.0
+    assert stamps._pending is None and not flushed  # still far ahead: not written again
+    clock.now += 2.0
     now = stamps.advance(0)
+    stamps.close()
     assert int(path.read_text()) == now + reserve
+    assert flushed and not any(main for _, main in flushed)  # by the writer, not in the tick
     assert SigningTimestamps(path, lambda: clock.now - 7200.0).start == now + reserve  # a restart starts above it
     assert SigningTimestamps(path, lambda: clock.now + 7200.0).start == clock_timestamp(clock.now + 7200.0)
+
+
+def test_no_frame_is_signed_at_the_stored_reservation_before_a_new_one_is_on_disk(tmp_path, monkeypatch):
+    """A writer that has not finished by then (a disk stalled for RENEW_S) is waited for."""
+    release = threading.Event()
+    real_fsync = os.fsync
+
+    def stalled_fsync(fd):
+        if threading.current_thread() is not threading.main_thread():
+            release.wait(10.0)
+        real_fsync(fd)
+
+    monkeypatch.setattr(signing.os, "fsync", stalled_fsync)
+    path = tmp_path / "t"
+    clock = Clock()
+    stamps = SigningTimestamps(path, clock)
+    stored = int(path.read_text())
+    clock.now += RESERVE_S - RENEW_S + 1.0
+    stamps.advance(0)  # the writer starts, and stalls
+    clock.now += RENEW_S  # now past the stored reservation
+    threading.Timer(0.2, release.set).start()
+    stamp = stamps.advance(0)
+    assert release.is_set() and stamp > stored and int(path.read_text()) > stamp
+    stamps.close()
 
 
 def test_a_clock_before_2015_starts_from_the_stored_timestamp(tmp_path):
@@ -169,7 +214,8 @@ def test_a_state_file_out_of_reach_stops_the_start(tmp_path, where, why):
         SigningTimestamps(tmp_path / where)
 
 
-def test_a_failed_store_later_is_reported_and_signing_goes_on(tmp_path):
+def test_a_failed_store_later_is_reported_and_signing_goes_on(tmp_path, monkeypatch):
+    monkeypatch.setattr(signing, "RETRY_S", 0.0)
     path = tmp_path / "state" / "t"
     path.parent.mkdir()
     clock = Clock()
@@ -183,6 +229,7 @@ def test_a_failed_store_later_is_reported_and_signing_goes_on(tmp_path):
     clock.now += 1.0
     stamps.advance(0)
     assert stamps.store_error == "" and path.exists()
+    stamps.close()
 
 
 def gcs_heartbeat_heard(conn, sender, timeout=3.0):
@@ -206,6 +253,53 @@ def test_a_station_whose_clock_is_behind_the_gcs_is_accepted_once_it_hears_the_g
     assert gcs_heartbeat_heard(conn, sender)
     assert sender.mav.signing.timestamp >= clock_timestamp(clock.now + 600.0)
     assert heartbeats_taken(conn, sender) == 3
+    sender.close()
+
+
+def test_a_forged_frame_neither_blocks_the_gcs_stamps_nor_piles_up(key_file):
+    """pymavlink records a stream's stamp before it checks the signature. With the sender's own
+    signing state, a forged frame stamped far ahead on the GCS's stream made the GCS's real frames
+    look old, and each forged (link, system, component) stayed in its table for good. A udpin
+    station hears anyone who sends to its port."""
+    clock = Clock()
+    port = free_udp_port()
+    mav = dataclasses.replace(CONFIG.mavlink, connection=f"udpin:127.0.0.1:{port}", signing_key_file=str(key_file))
+    sender = MavlinkSender(mav, clock=clock)
+    gcs = open_link(f"udpout:127.0.0.1:{port}", 255, 190, KEY)
+    gcs.mav.signing.timestamp = clock_timestamp(clock.now + 600.0)
+    forger = open_link(f"udpout:127.0.0.1:{port}", 255, 190, bytes(32))  # the GCS's ids, another key
+    forger.mav.signing.timestamp = clock_timestamp(clock.now + 86400.0)
+    for system in (255, *range(1, 50)):
+        forger.mav.srcSystem = system
+        forger.mav.heartbeat_send(6, 8, 0, 0, 4)
+    deadline = time.monotonic() + 3.0
+    while sender._inbound.signing.badsig_count < 50 and time.monotonic() < deadline:
+        sender.poll()
+        time.sleep(0.01)
+    assert sender._inbound.signing.badsig_count == 50
+    assert sender.mav.signing.timestamp < clock_timestamp(clock.now + 1.0)  # no forged stamp taken
+    assert gcs_heartbeat_heard(gcs, sender)  # the GCS's real frame still raises it
+    assert clock_timestamp(clock.now + 600.0) <= sender.mav.signing.timestamp < clock_timestamp(clock.now + 601.0)
+    assert len(sender._inbound.signing.stream_timestamps) <= 1
+    for link in (gcs, forger, sender):
+        link.close()
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_a_gcs_stamp_beyond_what_48_bits_can_reserve_is_not_taken(gcs, key_file):
+    clock = Clock()
+    conn = gcs(clock.now)
+    sender = station(conn, key_file, clock)
+    heartbeats_taken(conn, sender)
+    conn.mav.signing.timestamp = LAST_TIMESTAMP + 1
+    assert not gcs_heartbeat_heard(conn, sender, timeout=0.5)
+    conn.mav.signing.timestamp = LAST_TIMESTAMP - 5
+    assert gcs_heartbeat_heard(conn, sender)
     sender.close()
 
 

@@ -19,7 +19,7 @@ from ..geometry import quat_conjugate, quat_to_euler_zyx
 from .config import MavlinkConfig
 from .frames import LandingPose, euler_covariance, target_in_body
 from .link import LinkStats, open_transport
-from .signing import SigningTimestamps, clock_timestamp
+from .signing import LAST_TIMESTAMP, SigningTimestamps, clock_timestamp
 
 ODOMETRY_FRAME_IDS = {
     "LOCAL_FRD": mav2.MAV_FRAME_LOCAL_FRD,
@@ -127,11 +127,11 @@ class MavlinkSender:
         self.link = open_transport(cfg.connection)
         start = self._stamps.start if self._stamps is not None else None
         self.mav = encoder(self.link, cfg.system_id, cfg.component_id, key, cfg.signing_link_id, start)
-        self._inbound = None  # parses what the GCS sends, with the station's signing state
+        self._inbound = None  # parses what the GCS sends, for the stamps of its signed frames
         if key is not None:
             self._inbound = mav2.MAVLink(None)
             self._inbound.robust_parsing = True
-            self._inbound.signing = self.mav.signing
+            self._inbound.signing.secret_key = key
 
     @property
     def stats(self) -> LinkStats:
@@ -149,11 +149,21 @@ class MavlinkSender:
 
     def poll(self) -> bool:
         """Service the link (see ``Link.poll``): True once when it sends again after an outage.
-        Signed, what came in is parsed: a frame with a good signature raises the timestamp."""
+        Signed, what came in is parsed: the stamp of a frame with a good signature raises the
+        station's timestamp (up to ``LAST_TIMESTAMP``).
+
+        The parser has signing state of its own, emptied before each parse: pymavlink records a
+        stream's stamp before it checks the signature, so a forged frame could otherwise block
+        the GCS's later frames, and one stream per forged (link, system, component) would pile up."""
         back = self.link.poll()
         data = self.link.received()
         if data and self._inbound is not None:
+            signing = self._inbound.signing
+            signing.timestamp = 0
+            signing.stream_timestamps.clear()
             self._inbound.parse_buffer(data)
+            if signing.timestamp <= LAST_TIMESTAMP:
+                self.mav.signing.timestamp = max(self.mav.signing.timestamp, signing.timestamp)
         return back
 
     def send_pose(self, pose: LandingPose, stamp_s: float) -> list[str]:
@@ -173,3 +183,5 @@ class MavlinkSender:
 
     def close(self) -> None:
         self.link.close()
+        if self._stamps is not None:
+            self._stamps.close()

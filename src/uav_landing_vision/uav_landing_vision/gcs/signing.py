@@ -13,13 +13,17 @@ a stored timestamp; ``SigningTimestamps`` does both.
 
 import os
 import time
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import Callable
 
 SIGNING_EPOCH_S = 1420070400  # 2015-01-01 00:00 UTC
 UNITS_PER_S = 100_000
-RESERVE_S = 60.0  # the stored timestamp runs this far ahead of the ones in use
-HEADROOM = 10_000  # frames that may still be signed below the stored timestamp
+RESERVE_S = 60.0  # a new reservation runs this far ahead of the stamps in use
+RENEW_S = 30.0  # and is written, in the background, once they come this close to the stored one
+HEADROOM = 10_000  # frames that may still be signed below the stored reservation
+RETRY_S = 1.0  # a failed write is tried again at most this often
+LAST_TIMESTAMP = (1 << 48) - 1 - 2 * int(RESERVE_S * UNITS_PER_S)  # above it no reservation fits in 48 bits
 
 
 def clock_timestamp(now_s: float) -> int:
@@ -31,11 +35,14 @@ class SigningTimestamps:
     """The outgoing timestamps of one signed link: never below the clock, never going back, and,
     with a state file, never reused across restarts, whatever the clock did meanwhile.
 
-    The file holds a reservation: a timestamp ``RESERVE_S`` ahead of the ones in use, written
-    (atomically, flushed to disk) before any frame is signed at or above it. A station starts
-    from the greater of its clock and the reservation, so a crash loses nothing. A reservation
-    that cannot be written later (a full disk) leaves the signing going, and ``store_error``
-    says why, until a write succeeds.
+    The file holds a reservation, a timestamp ahead of the ones in use; no frame is signed at or
+    above the reservation on disk (written to a temporary file, flushed, renamed over the file,
+    and the rename flushed). A station starts from the greater of its clock and the reservation,
+    so neither a crash nor a power cut loses anything. The next reservation is written by a
+    thread of its own once the stamps are ``RENEW_S`` from the stored one, so a slow disk does
+    not hold up the bridge's tick; only a stamp about to reach the stored reservation waits for
+    it. A reservation that cannot be written (a full disk) leaves the signing going, and
+    ``store_error`` says why, until a write succeeds; it is tried again at most every ``RETRY_S``.
     """
 
     def __init__(self, state_file: str | Path | None, clock: Callable[[], float] = time.time):
@@ -43,19 +50,53 @@ class SigningTimestamps:
         self._clock = clock
         self.store_error = ""
         self.start = clock_timestamp(clock())
-        self._reserved = 0
+        self._reserved = 0  # the reservation on disk
+        self._pending: tuple[Future, int] | None = None  # a reservation being written, and its value
+        self._next_try = -float("inf")  # monotonic time before which a failed write is not tried again
+        self._writer = None
         if self._path is not None:
             self.start = max(self.start, self._read())
-            self._reserve(self.start)
+            self._store(self.start + _reserve_units())
             if self.store_error:
                 raise OSError(f"mavlink signing timestamp file {self.store_error}")
+            self._writer = ThreadPoolExecutor(1, thread_name_prefix="signing-timestamp")
 
     def advance(self, current: int) -> int:
         """The timestamp to sign the next frames from, given the link's ``current`` one."""
         stamp = max(current, clock_timestamp(self._clock()))
-        if self._path is not None and stamp + HEADROOM >= self._reserved:
-            self._reserve(stamp)
+        if self._path is None:
+            return stamp
+        reaching = stamp + HEADROOM >= self._reserved
+        self._collect(wait=reaching)
+        if stamp + HEADROOM >= self._reserved and time.monotonic() >= self._next_try:
+            self._store(stamp + _reserve_units())  # it must be on disk before frames reach it: here
+        elif self._pending is None and stamp + int(RENEW_S * UNITS_PER_S) >= self._reserved \
+                and time.monotonic() >= self._next_try:
+            value = stamp + _reserve_units()
+            self._pending = self._writer.submit(self._write, value), value
         return stamp
+
+    def close(self) -> None:
+        """Finish a reservation being written, and stop the writer."""
+        self._collect(wait=True)
+        if self._writer is not None:
+            self._writer.shutdown()
+
+    def _collect(self, wait: bool) -> None:
+        """Take the result of the reservation being written, if done (or, with ``wait``, once done)."""
+        if self._pending is None or not (wait or self._pending[0].done()):
+            return
+        (future, value), self._pending = self._pending, None
+        self._settle(future.result(), value)
+
+    def _store(self, value: int) -> None:
+        self._settle(self._write(value), value)
+
+    def _settle(self, error: str, value: int) -> None:
+        if error:
+            self.store_error, self._next_try = error, time.monotonic() + RETRY_S
+        else:
+            self._reserved, self.store_error = max(self._reserved, value), ""
 
     def _read(self) -> int:
         try:
@@ -71,16 +112,24 @@ class SigningTimestamps:
             )
         return int(text)
 
-    def _reserve(self, stamp: int) -> None:
-        reserved = stamp + int(RESERVE_S * UNITS_PER_S)
+    def _write(self, value: int) -> str:
+        """Put ``value`` on disk for good; "" or why it could not."""
         tmp = self._path.with_name(self._path.name + ".tmp")
         try:
             with open(tmp, "w", encoding="ascii") as f:
-                f.write(f"{reserved}\n")
+                f.write(f"{value}\n")
                 f.flush()
                 os.fsync(f.fileno())
             os.replace(tmp, self._path)
+            folder = os.open(self._path.parent, os.O_RDONLY)
+            try:
+                os.fsync(folder)  # the rename itself
+            finally:
+                os.close(folder)
         except OSError as exc:
-            self.store_error = f"{self._path}: cannot write it ({exc})"
-            return
-        self._reserved, self.store_error = reserved, ""
+            return f"{self._path}: cannot write it ({exc})"
+        return ""
+
+
+def _reserve_units() -> int:
+    return int(RESERVE_S * UNITS_PER_S)
