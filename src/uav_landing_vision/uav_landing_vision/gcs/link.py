@@ -38,6 +38,7 @@ from dataclasses import dataclass
 REOPEN_PERIOD_S = 1.0
 CONNECT_TIMEOUT_S = 2.0
 START_WAIT_S = 1.0  # start-up waits this long for the first TCP connection
+TCP_USER_TIMEOUT_MS = 2000  # unacknowledged data older than this fails a TCP link
 PEER_SILENCE_S = 5.0  # udpin answers an address no longer once it has been silent this long
 READS_PER_POLL = 64
 READ_SIZE = 65536
@@ -75,7 +76,7 @@ def open_transport(connection: str) -> "Link":
 
 def _speed(baud: str) -> int:
     speed = getattr(termios, f"B{baud}", None) if baud.isdigit() else None
-    if speed is None:
+    if not speed:  # B0 (0) hangs the line up
         raise ValueError(f"serial baud rate '{baud}' is not one a tty takes (e.g. 57600, 115200)")
     return speed
 
@@ -170,10 +171,16 @@ class DatagramLink(Link):
         if not self._peers:
             self._last_error = f"no GCS heard within {PEER_SILENCE_S:g} s: nowhere to send"  # udpin only
             return False
-        if self._listen:
-            for peer in self._peers:
-                self._sock.sendto(frame, peer)
-            return True
+        if self._listen:  # one peer that cannot be reached must not cost the others the frame
+            errors = []
+            for host, port in self._peers:
+                try:
+                    self._sock.sendto(frame, (host, port))
+                except OSError as exc:
+                    errors.append(f"{host}:{port}: {exc}")
+            if errors:
+                self._last_error = "; ".join(errors)
+            return len(errors) < len(self._peers)
         if not self._connected:  # at start-up, or while there is no route to the GCS
             self._sock.connect(next(iter(self._peers)))
             self._connected = True
@@ -319,6 +326,9 @@ class TcpLink(StreamLink):
         sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         sock.setblocking(False)
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        # A GCS that stops acknowledging (its network gone) fails the link within this, instead
+        # of the kernel holding frames for the ~15 min of its retransmissions and sending them late.
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_USER_TIMEOUT, TCP_USER_TIMEOUT_MS)
         err = sock.connect_ex(self._address)
         if err not in (0, errno.EINPROGRESS):
             sock.close()
@@ -375,11 +385,15 @@ class SerialLink(StreamLink):
 
 
 def _make_raw(fd: int, speed: int) -> None:
-    """8 data bits, no parity, 1 stop bit, no flow control, no line editing, at ``speed``."""
-    tty.setraw(fd)
+    """8 data bits, no parity, 1 stop bit, no flow control, no line editing, no translation of
+    input bytes, at ``speed``. Python 3.11's ``tty.setraw`` leaves INLCR, IGNCR, PARMRK, IGNBRK
+    and IUCLC as an earlier user of the device set them (3.12's ``cfmakeraw`` clears them): with
+    INLCR a 0x0a byte of a frame came in as 0x0d."""
+    tty.setraw(fd, termios.TCSANOW)
     iflag, oflag, cflag, lflag, _, _, cc = termios.tcgetattr(fd)
     cflag = (cflag | termios.CLOCAL | termios.CREAD) & ~(termios.CRTSCTS | termios.CSTOPB)
-    iflag &= ~(termios.IXON | termios.IXOFF)
+    iflag &= ~(termios.IXON | termios.IXOFF | termios.INLCR | termios.IGNCR | termios.ICRNL | termios.PARMRK
+               | termios.IGNBRK | termios.BRKINT | termios.ISTRIP | termios.IUCLC | termios.INPCK)
     termios.tcsetattr(fd, termios.TCSANOW, [iflag, oflag, cflag, lflag, speed, speed, cc])
 
 
