@@ -75,6 +75,24 @@ def test_ubigaf_sigma_points_reproduce_the_bingham_gauss_moments():
 
 
 @pytest.mark.parametrize("kind", KINDS)
+def test_predictions_without_an_update_keep_the_mean_angular_velocity(kind):
+    """ω is a random walk: its mean must not move however many frames the filter predicts
+    without a measurement (the tracker predicts up to 60 Δt across a gap). The UBiGaF's sigma
+    points took the conditional mean of ω about zero, not about their own mean quaternion, and
+    moved it by 0.26 rad/s after 20 predictions, 8 rad/s after 60."""
+    filt = make_rotation_filter(MotionFilterConfig(rotation_filter=kind))
+    q0, w0 = Rotation.random(1, random_state=1).as_quat(), np.array([[1.5, -2.0, 0.7]])
+    state, truth = filt.init(q0, w0), Rotation.from_quat(q0)
+    for _ in range(10):
+        truth = truth * Rotation.from_rotvec(w0[0] * DT)
+        state = filt.update(filt.predict(state), truth.as_quat())
+    before = filt.estimate(state)[1].copy()
+    for _ in range(30):
+        state = filt.predict(state)
+    np.testing.assert_allclose(filt.estimate(state)[1], before, atol=1e-9)
+
+
+@pytest.mark.parametrize("kind", KINDS)
 def test_states_can_be_resampled_and_joined(kind):
     filt = make_rotation_filter(MotionFilterConfig(rotation_filter=kind))
     q = Rotation.random(5, random_state=8).as_quat()

@@ -34,9 +34,10 @@ def recentre(kind: str, state, quat: np.ndarray):
     if kind == "ubif":
         delta = quat_multiply(quat_conjugate(bingham.mode(state.m)), quat)
         return replace(state, m=bingham.rotate(state.m, delta, "right"))
+    quat = quat_canonical(quat)  # the mode's hemisphere, which P_qω's sign goes with
     delta = quat_multiply(quat_conjugate(state.q), quat)  # ubigaf: mode, P_q and P_qω turn by δ
     p_q = bingham.rotate(np.swapaxes(bingham.rotate(state.p_q, delta, "right"), -1, -2), delta, "right")
-    return replace(state, q=quat_canonical(quat), p_q=p_q, p_qw=bingham.rotate(state.p_qw, delta, "right"),
+    return replace(state, q=quat, p_q=p_q, p_qw=bingham.rotate(state.p_qw, delta, "right"),
                    sig_q=None, sig_w=None, weights=None)
 
 
