@@ -7,6 +7,7 @@ outage never reached the GCS).
 """
 
 import dataclasses
+import errno
 import os
 import socket
 import struct
@@ -263,7 +264,7 @@ def test_udpout_tells_whether_anybody_listens_and_sends_all_the_same():
                 return
 
     flight.pump = pump
-    flight.run(0.5)
+    flight.run(link_module.REFUSAL_QUIET_S + 0.5)  # frames out without a refusal for that long: somebody listens
     # Up again: the heartbeat and the stage first, as after an outage (the stage changed unheard).
     heard = [m for data in got for m in parse(data)]
     assert bridge.link_stats.up and {m.get_type() for m in heard} >= {"HEARTBEAT", "ODOMETRY"}
@@ -544,3 +545,69 @@ def test_a_tcp_link_gives_up_on_a_gcs_that_stops_acknowledging():
     finally:
         link.close()
         gcs.go_away()
+
+
+def test_udpout_does_not_flap_when_the_host_rate_limits_its_port_unreachable(monkeypatch):
+    """Linux answers at most about one "port unreachable" a second to a remote sender (not on
+    loopback). At 10 ticks a second most polls saw none, so the link went up and down every
+    second, logging each change and re-sending the heartbeat and the stage each time."""
+    port = free_port(socket.SOCK_DGRAM)
+    link = link_module.open_transport(f"udpout:127.0.0.1:{port}")
+    now = [1000.0]
+    monkeypatch.setattr(link_module.time, "monotonic", lambda: now[0])
+    real_recv, tick = link._sock.recv, [0]
+
+    class RateLimited:  # the kernel's answer kept to one a second, as from a remote host
+        def __getattr__(self, name):
+            return getattr(sock, name)
+
+        def recv(self, size):
+            try:
+                return real_recv(size)
+            except ConnectionRefusedError:
+                if tick[0] % 10:
+                    raise BlockingIOError from None
+                raise
+
+    link.write(b"frame")  # connects the socket
+    sock = link._sock
+    link._sock = RateLimited()
+    states = []
+    for tick[0] in range(60):  # 6 s at 10 Hz: a frame then a poll
+        link.write(b"frame")
+        time.sleep(0.005)  # the loopback's answer
+        link.poll()
+        states.append(link.stats.up)
+        now[0] += 0.1
+    link.close()
+    assert not any(states[10:]) and "nobody listens" in link.stats.last_error
+
+
+def test_udpout_replaces_a_socket_that_fails_otherwise():
+    """A connected UDP socket keeps the source address it was connected from: after the
+    station's address changed (DHCP, a radio modem reconnecting) every send failed with
+    ENETUNREACH until the node was restarted, where a new socket works at once."""
+    gcs = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    gcs.bind(("127.0.0.1", 0))
+    gcs.settimeout(2.0)
+    link = link_module.open_transport(f"udpout:127.0.0.1:{gcs.getsockname()[1]}")
+
+    class AddressGone:
+        def send(self, data, *flags):
+            raise OSError(errno.ENETUNREACH, os.strerror(errno.ENETUNREACH))
+
+        def close(self):
+            pass
+
+    try:
+        link.write(b"one")
+        assert gcs.recv(64) == b"one"
+        old, link._sock = link._sock, AddressGone()
+        link.write(b"lost")
+        old.close()
+        link.write(b"two")
+        assert gcs.recv(64) == b"two"
+        assert (link.stats.written, link.stats.dropped) == (2, 1) and "unreachable" in link.stats.last_error
+    finally:
+        link.close()
+        gcs.close()

@@ -40,6 +40,9 @@ CONNECT_TIMEOUT_S = 2.0
 START_WAIT_S = 1.0  # start-up waits this long for the first TCP connection
 TCP_USER_TIMEOUT_MS = 2000  # unacknowledged data older than this fails a TCP link
 PEER_SILENCE_S = 5.0  # udpin answers an address no longer once it has been silent this long
+# udpout: a host answers at most about one "port unreachable" a second (Linux rate-limits them,
+# but not on loopback), so nobody listens until frames have gone out this long without one.
+REFUSAL_QUIET_S = 2.5
 READS_PER_POLL = 64
 READ_SIZE = 65536
 DEFAULT_BAUD = "115200"
@@ -153,15 +156,22 @@ class DatagramLink(Link):
     def __init__(self, address, listen: bool):
         super().__init__()
         self._listen = listen
-        self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self._sock.setblocking(False)
+        self._sock = self._socket()
         if listen:
             self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
             self._sock.bind(address)
         self._peers = {} if listen else {address: None}  # address -> monotonic time last heard (udpin)
         self._refused = False  # udpout: the last frames met "port unreachable", and the GCS was not heard since
+        self._last_refusal = -float("inf")  # udpout: monotonic time of the last "port unreachable"
         self._unconfirmed = False  # udpout: a frame went out since the last poll
         self._connected = listen
+        self._next_renewal = 0.0  # udpout: a failed socket is replaced at most once every REOPEN_PERIOD_S
+
+    @staticmethod
+    def _socket() -> socket.socket:
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        sock.setblocking(False)
+        return sock
 
     @property
     def up(self) -> bool:
@@ -222,16 +232,28 @@ class DatagramLink(Link):
                 refused = True
             else:
                 heard = True
+        quiet = time.monotonic() - self._last_refusal > REFUSAL_QUIET_S
         if refused and not heard:
             self._not_listening()
-        elif self._refused and (heard or self._unconfirmed):  # what went out in between was lost: as after an outage
+        elif self._refused and (heard or self._unconfirmed and quiet):  # what went out in between was lost: as after an outage
             self._refused, self._back = False, True
         self._unconfirmed = False
 
     def _not_listening(self) -> None:
         host, port = next(iter(self._peers))
-        self._refused = True
+        self._refused, self._last_refusal = True, time.monotonic()
         self._last_error = f"nobody listens at {host}:{port} (port unreachable)"
+
+    def _failed(self, exc: OSError) -> None:
+        """udpout: a socket that fails otherwise (no route, an address gone: the station's address
+        changed, a radio modem reconnected) is replaced, at most once every ``REOPEN_PERIOD_S``: a
+        connected UDP socket keeps the source address it was connected from."""
+        super()._failed(exc)
+        if self._listen or isinstance(exc, ConnectionRefusedError) or time.monotonic() < self._next_renewal:
+            return
+        self._next_renewal = time.monotonic() + REOPEN_PERIOD_S
+        self._sock.close()
+        self._sock, self._connected = self._socket(), False
 
     def close(self) -> None:
         self._sock.close()
