@@ -276,8 +276,9 @@ def sigma_points(m: np.ndarray, z: np.ndarray, n_total: int = 14) -> tuple[np.nd
 
     Canonical points (D.1)–(D.4) with angles (D.6) and weights (D.7)–(D.10), mapped by ``M``.
     Of each antipodal pair of the thesis's ``4d − 2 = 14`` points only the one in the mode's
-    hemisphere is kept, carrying the pair's weight, so the weights sum to one and
-    ``Σ w q qᵀ`` equals the covariance (C.6) exactly.
+    hemisphere is kept, carrying the pair's weight; the point at the mode, which has no pair
+    there, keeps its own (the thesis's weights sum to ``1 + f₄/N``), so the weights sum to one
+    and ``Σ w q qᵀ`` equals the covariance (C.6) exactly.
     """
     f = moments(z)
     w_b = f[..., :3] + (1.0 - 1.0 / n_total) * f[..., 3:4] / 3.0  # w_Bi of (D.6)–(D.9)

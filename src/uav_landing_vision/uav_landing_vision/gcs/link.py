@@ -53,7 +53,7 @@ OUTPUT_FULL = "output full: the GCS or the radio is not reading"
 @dataclass(frozen=True)
 class LinkStats:
     up: bool  # it takes frames now, as far as the station can tell (a UDP GCS may be gone unseen)
-    written: int  # frames handed whole to the operating system
+    written: int  # frames handed to the operating system (on a stream, a frame taken in part counts; its rest goes first)
     dropped: int  # frames not sent
     failures: int  # errors that closed a TCP or serial link or failed its reopening
     restored: int  # times frames went out again after some were dropped
