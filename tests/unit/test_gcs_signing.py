@@ -13,6 +13,7 @@ import time
 
 import pytest
 from test_gcs_landing import CONFIG
+from test_gcs_link import free_port
 
 from uav_landing_vision.gcs.mavlink import MavlinkSender, open_link
 from uav_landing_vision.gcs import signing
@@ -262,7 +263,7 @@ def test_a_forged_frame_neither_blocks_the_gcs_stamps_nor_piles_up(key_file):
     look old, and each forged (link, system, component) stayed in its table for good. A udpin
     station hears anyone who sends to its port."""
     clock = Clock()
-    port = free_udp_port()
+    port = free_port(socket.SOCK_DGRAM)
     mav = dataclasses.replace(CONFIG.mavlink, connection=f"udpin:127.0.0.1:{port}", signing_key_file=str(key_file))
     sender = MavlinkSender(mav, clock=clock)
     gcs = open_link(f"udpout:127.0.0.1:{port}", 255, 190, KEY)
@@ -283,12 +284,6 @@ def test_a_forged_frame_neither_blocks_the_gcs_stamps_nor_piles_up(key_file):
     assert len(sender._inbound.signing.stream_timestamps) <= 1
     for link in (gcs, forger, sender):
         link.close()
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def test_a_gcs_stamp_beyond_what_48_bits_can_reserve_is_not_taken(gcs, key_file):

@@ -78,7 +78,7 @@ def string_parameter(value) -> str:
 
 def ready_topics_parameter(topics=PIPELINE_TOPICS) -> str:
     """``topics`` as the value of a ``-p ready_topics:=...`` override (a YAML list)."""
-    return "[" + ", ".join(f'"{t}"' for t in topics) + "]"
+    return json.dumps(list(topics))
 
 
 def replay_ready_topics(bag, remaps=None) -> tuple[str, ...]:

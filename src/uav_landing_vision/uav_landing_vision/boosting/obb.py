@@ -121,9 +121,14 @@ def obb_from_mask(mask: np.ndarray) -> Obb | None:
     contours, _ = cv2.findContours((mask != 0).astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     if not contours:
         return None
-    # The hull of the outer boundary pixels carries the box; grow it to pixel extents.
-    hull = cv2.convexHull(np.concatenate(contours)).reshape(-1, 2).astype(np.float32)
-    return obb_from_points(np.concatenate([hull + d for d in _PIXEL_CORNERS]))
+    # The hull of the outer boundary pixels carries the box; grown to pixel extents.
+    return obb_from_pixels(cv2.convexHull(np.concatenate(contours)).reshape(-1, 2).astype(np.float32))
+
+
+def obb_from_pixels(centres: np.ndarray) -> Obb | None:
+    """:func:`obb_from_points` of the pixels at ``centres (N, 2)``: each counted to its extent,
+    half a pixel each side of its centre."""
+    return obb_from_points(np.concatenate([centres + d for d in _PIXEL_CORNERS]))
 
 
 _PIXEL_CORNERS = np.array([[-0.5, -0.5], [0.5, -0.5], [0.5, 0.5], [-0.5, 0.5]], dtype=np.float32)
@@ -189,7 +194,7 @@ def obb_from_frame(image: np.ndarray, roi, config: FastConfig = FastConfig(), ma
     box = obb_from_points(corners)  # degenerate (under a pixel thick) either way
     if box is None or not config.pixel_extent:
         return box
-    return obb_from_points(np.concatenate([corners + d for d in _PIXEL_CORNERS]))
+    return obb_from_pixels(corners)
 
 
 def outline_corners(gray_roi: np.ndarray, length_px: float, config: FastConfig) -> np.ndarray | None:

@@ -23,7 +23,8 @@ RESERVE_S = 60.0  # a new reservation runs this far ahead of the stamps in use
 RENEW_S = 30.0  # and is written, in the background, once they come this close to the stored one
 HEADROOM = 10_000  # frames that may still be signed below the stored reservation
 RETRY_S = 1.0  # a failed write is tried again at most this often
-LAST_TIMESTAMP = (1 << 48) - 1 - 2 * int(RESERVE_S * UNITS_PER_S)  # above it no reservation fits in 48 bits
+RESERVE, RENEW = int(RESERVE_S * UNITS_PER_S), int(RENEW_S * UNITS_PER_S)  # in stamp units
+LAST_TIMESTAMP = (1 << 48) - 1 - 2 * RESERVE  # above it no reservation fits in 48 bits
 
 
 def clock_timestamp(now_s: float) -> int:
@@ -56,7 +57,7 @@ class SigningTimestamps:
         self._writer = None
         if self._path is not None:
             self.start = max(self.start, self._read())
-            self._store(self.start + _reserve_units())
+            self._store(self.start + RESERVE)
             if self.store_error:
                 raise OSError(f"mavlink signing timestamp file {self.store_error}")
             self._writer = ThreadPoolExecutor(1, thread_name_prefix="signing-timestamp")
@@ -66,14 +67,13 @@ class SigningTimestamps:
         stamp = max(current, clock_timestamp(self._clock()))
         if self._path is None:
             return stamp
-        reaching = stamp + HEADROOM >= self._reserved
-        self._collect(wait=reaching)
-        if stamp + HEADROOM >= self._reserved and time.monotonic() >= self._next_try:
-            self._store(stamp + _reserve_units())  # it must be on disk before frames reach it: here
-        elif self._pending is None and stamp + int(RENEW_S * UNITS_PER_S) >= self._reserved \
-                and time.monotonic() >= self._next_try:
-            value = stamp + _reserve_units()
-            self._pending = self._writer.submit(self._write, value), value
+        self._collect(wait=stamp + HEADROOM >= self._reserved)
+        if time.monotonic() < self._next_try:
+            return stamp
+        if stamp + HEADROOM >= self._reserved:
+            self._store(stamp + RESERVE)  # it must be on disk before frames reach it: here
+        elif self._pending is None and stamp + RENEW >= self._reserved:
+            self._pending = self._writer.submit(self._write, stamp + RESERVE), stamp + RESERVE
         return stamp
 
     def close(self) -> None:
@@ -129,7 +129,3 @@ class SigningTimestamps:
         except OSError as exc:
             return f"{self._path}: cannot write it ({exc})"
         return ""
-
-
-def _reserve_units() -> int:
-    return int(RESERVE_S * UNITS_PER_S)
