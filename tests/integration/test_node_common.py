@@ -25,10 +25,11 @@ from rosbags.rosbag2 import CompressionFormat, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 from sensor_msgs.msg import CameraInfo, Image
 
-from uav_landing_vision.camera import CameraModel, camera_info_fields
+from uav_landing_vision.camera import CameraInfoError, CameraModel, camera_info_fields
 from uav_landing_vision.config import ConfigError
 from uav_landing_vision.nodes import base
 from uav_landing_vision.nodes.base import LandingNode, run_node
+from uav_landing_vision.nodes.calibration import Calibration
 from uav_landing_vision.nodes.image import ImageError, image_to_numpy, numpy_to_image
 from uav_landing_vision.nodes.qos import IMAGE_QOS, KEEP_ALL_QOS, RELIABLE_QOS, SENSOR_QOS, qos_for_type
 from uav_landing_vision.nodes.sync import RepeatedStampError, StampCache
@@ -180,6 +181,16 @@ def test_numpy_to_image_rejects_arrays_that_do_not_fit_the_encoding():
         numpy_to_image(np.zeros((4, 4), np.float32), "mono8", Image().header)
     with pytest.raises(ImageError, match="unsupported image encoding 'yuv422'"):
         numpy_to_image(np.zeros((4, 4, 2), np.uint8), "yuv422", Image().header)
+
+
+def test_a_fisheye_camera_info_is_refused_on_the_rectified_topic_even_without_coefficients():
+    """An equidistant lens with D = 0 still projects θ, not tan θ: its image is not rectified."""
+    fisheye = CameraModel(320, 240, [[300.0, 0, 160.0], [0, 300.0, 120.0], [0, 0, 1]], [], distortion_model="equidistant")
+    calibration = Calibration(rectified=True)
+    with pytest.raises(CameraInfoError, match=r"equidistant distortion \[0.0, 0.0, 0.0, 0.0\] in the camera_info of a rectified"):
+        calibration.update(camera_info_msg(fisheye))
+    assert calibration.camera is None
+    assert Calibration(rectified=False).update(camera_info_msg(fisheye))
 
 
 def test_qos_reliable_in_the_graph_best_effort_only_for_camera_drivers():

@@ -276,6 +276,14 @@ def test_each_distortion_model_takes_its_own_coefficient_count():
     np.testing.assert_array_equal(rectified.K, FISHEYE.K)
 
 
+def test_an_equidistant_lens_without_coefficients_is_still_distorted():
+    """θ_d = θ is not the pinhole's tan θ: OpenCV's fisheye rectification moves a corner pixel of
+    such a lens by tens of pixels, so it is no rectified camera."""
+    camera = CameraModel(1280, 720, [[600, 0, 639.5], [0, 600, 359.5], [0, 0, 1]], [], distortion_model="equidistant")
+    assert camera.is_distorted
+    assert np.hypot(*(camera.undistort_points(np.array([0.0, 0.0])) - [0.0, 0.0])) > 10.0
+
+
 def test_four_distortion_coefficients_mean_k3_zero():
     camera = CameraModel(640, 480, GENERAL.K, [-0.2, 0.05, 0.001, -0.002])
     np.testing.assert_array_equal(camera.dist, [-0.2, 0.05, 0.001, -0.002, 0.0])

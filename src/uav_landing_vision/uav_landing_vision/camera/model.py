@@ -85,7 +85,9 @@ class CameraModel:
 
     @property
     def is_distorted(self) -> bool:
-        return bool(np.any(self.dist != 0.0))
+        """Whether the raw image differs from the pinhole one: any coefficient, or the equidistant
+        projection, which is not the pinhole's even with none."""
+        return self._fisheye or bool(np.any(self.dist != 0.0))
 
     def rectified(self) -> "CameraModel":
         """The camera of the undistorted image: same intrinsics, no distortion."""
