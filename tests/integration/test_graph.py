@@ -23,9 +23,9 @@ from uav_landing_msgs.msg import TrackerStatus
 from uav_landing_vision.gcs.mavlink import open_link
 from uav_landing_vision import graph as graph_module
 from uav_landing_vision.graph import GRAPH_NODES, node_command
-from uav_landing_vision.nodes.base import stamp_ns
 from uav_landing_vision.nodes.image import image_to_numpy
 from uav_landing_vision.nodes.qos import RELIABLE_QOS, IMAGE_QOS
+from uav_landing_vision.stamps import stamp_ns
 
 REPO = Path(__file__).parents[2]
 PROCESS_TIMEOUT_S = 120.0

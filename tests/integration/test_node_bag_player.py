@@ -14,8 +14,8 @@ from test_node_common import SMALL_CAMERA, frame_entries, participant_of, ros, w
 
 from uav_landing_vision.config import ConfigError
 from uav_landing_vision.nodes.bag_player import BagPlayer
-from uav_landing_vision.nodes.base import stamp_ns
 from uav_landing_vision.nodes.qos import RELIABLE_QOS, IMAGE_QOS
+from uav_landing_vision.stamps import stamp_ns
 
 FRAMES = 5
 
@@ -277,6 +277,20 @@ def test_undeserialisable_messages_and_uninstalled_types_are_skipped(ros, playba
     assert "/camera/image_raw: message at 1010000000 ns does not deserialise" in playback.node.last_error
     custom = ros.add(BagPlayer(context=ros.context, parameter_overrides=[Parameter("bag", value=str(tmp_path / "custom"))]))
     assert custom.play(ros.executor) == 0 and custom.counters["published"] == 0
+
+
+def test_a_message_of_a_malformed_header_stamp_is_skipped(ros, playbacks, tmp_path):
+    """(0 s, 1.5e9 ns) would alias (1 s, 0.5e9 ns); every node drops it, so the player does not send it."""
+    malformed = PoseStamped()
+    malformed.header.stamp.sec, malformed.header.stamp.nanosec = 0, 1_500_000_000
+    bag = _bag(tmp_path, extra=[("/uav/ground_truth", "geometry_msgs/msg/PoseStamped", 1_010_000_000, malformed)])
+    truths = ros.collect(PoseStamped, "/uav/ground_truth", RELIABLE_QOS)
+    playback = Playback(ros, bag, mode="timed", rate=2.0, ready_topics=["/uav/ground_truth"])
+    playbacks.append(playback.start())
+    assert ros.spin_until(lambda: playback.done() and len(truths) == FRAMES)
+    assert playback.result == 0 and playback.node.counters["dropped"] == 1
+    assert "/uav/ground_truth: message at 1010000000 ns: header stamp 0 s + 1500000000 ns is malformed" in playback.node.last_error
+    assert all(t.header.stamp.nanosec < 1_000_000_000 for t in truths)
 
 
 def test_a_second_type_recorded_on_a_topic_is_not_played(ros, playbacks, tmp_path):

@@ -17,10 +17,10 @@ from test_node_common import ros  # noqa: F401 (fixture)
 
 from uav_landing_vision.config import ConfigError
 from uav_landing_vision.nodes import evaluator as evaluator_node
-from uav_landing_vision.nodes.base import stamp_ns
 from uav_landing_vision.nodes.evaluator import EvaluatorNode, run_until_done
 from uav_landing_vision.nodes.poses import numpy_to_pose
 from uav_landing_vision.nodes.qos import KEEP_ALL_QOS, RELIABLE_QOS
+from uav_landing_vision.stamps import stamp_ns
 from uav_landing_vision.sim import read_pose_csv
 
 REPO = Path(__file__).parents[2]

@@ -19,11 +19,11 @@ from uav_landing_vision.camera import CameraModel
 from uav_landing_vision.config import ConfigError, from_mapping, load_node_parameters
 from uav_landing_vision.geometry import euler_zyx_to_quat, quat_multiply
 from uav_landing_vision.model import fixed_wing_mesh
-from uav_landing_vision.nodes.base import stamp_ns
 from uav_landing_vision.nodes.pose_boosting import PoseBoostingNode
 from uav_landing_vision.nodes.qos import IMAGE_QOS, RELIABLE_QOS
 from uav_landing_vision.render import Renderer
 from uav_landing_vision.render.boxes import projected_roi
+from uav_landing_vision.stamps import stamp_ns
 
 PARAMS = Path(__file__).parents[2] / "config" / "pose_boosting.yaml"
 CAMERA = CameraModel(320, 240, [[280.0, 0, 160.0], [0, 280.0, 120.0], [0, 0, 1]])
@@ -257,7 +257,7 @@ def test_a_frame_dropped_for_want_of_calibration_says_why_the_camera_info_was_re
         rig.image_pub.publish(frame_msg(k))
         rig.det_pub.publish(detections_msg(k, [(*true_roi(k), 0.9)]))
     assert ros.spin_until(lambda: rig.node.counters["dropped"] == 2)
-    assert "(the latest camera_info was refused: distortion [-0.2, 0.05, 0.0, 0.0, 0.0] in the camera_info" in rig.node.last_error
+    assert "(the latest camera_info was refused: plumb_bob distortion [-0.2, 0.05, 0.0, 0.0, 0.0] in the camera_info" in rig.node.last_error
 
 
 def test_frames_before_the_first_calibration_are_held_as_many_as_the_cache(ros, small_database):

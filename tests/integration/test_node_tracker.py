@@ -19,12 +19,12 @@ from uav_landing_msgs.msg import PoseHypotheses, TrackerStatus
 from uav_landing_vision.boosting import HypothesisConfig, PoseDatabase, PoseHypothesisGenerator
 from uav_landing_vision.config import ConfigError
 from uav_landing_vision.geometry import geodesic_angle
-from uav_landing_vision.nodes.base import stamp_ns
 from uav_landing_vision.nodes.image import image_to_numpy
 from uav_landing_vision.nodes.poses import numpy_to_pose, pose_to_numpy
 from uav_landing_vision.nodes import tracker as tracker_node
 from uav_landing_vision.nodes.qos import IMAGE_QOS, RELIABLE_QOS
 from uav_landing_vision.nodes.tracker import BoostedPoses, TrackerNode
+from uav_landing_vision.stamps import stamp_ns
 from uav_landing_vision.tracking.upf import STAGES, Tracker, load_tracker_config
 
 PARAMS = Path(__file__).parents[2] / "config" / "tracker.yaml"
@@ -345,7 +345,7 @@ def test_a_frame_dropped_for_want_of_calibration_says_why_the_camera_info_was_re
         rig.image_pub.publish(frame_msg(k))
         rig.hyp_pub.publish(hypotheses_msg(k))
     assert ros.spin_until(lambda: rig.node.counters["dropped"] == 2)
-    assert "no camera/camera_info_rect (the latest camera_info was refused: distortion [-0.2" in rig.node.last_error
+    assert "no camera/camera_info_rect (the latest camera_info was refused: plumb_bob distortion [-0.2" in rig.node.last_error
 
 
 def test_a_calibration_it_cannot_use_is_dropped_and_the_last_one_kept(ros, generator, monkeypatch):

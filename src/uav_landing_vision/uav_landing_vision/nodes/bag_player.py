@@ -51,7 +51,8 @@ from rosgraph_msgs.msg import Clock
 
 from ..config import ConfigError
 from ..sim.bag import BagError, bag_messages, open_bag
-from .base import LandingNode, run_node, stamp_ns
+from ..stamps import header_stamp_ns, stamp_fields, stamp_ns
+from .base import LandingNode, run_node
 from .participant import IMAGE_TYPES
 from .qos import RELIABLE_QOS, qos_for_type
 
@@ -223,6 +224,11 @@ class BagPlayer(LandingNode):
             except RuntimeError as exc:
                 self.drop(f"{conn.topic}: message at {t_ns} ns does not deserialise as {conn.msgtype}: {exc}")
                 continue
+            try:
+                header_stamp_ns(msg)
+            except ValueError as exc:
+                self.drop(f"{conn.topic}: message at {t_ns} ns: {exc}")
+                continue
             yield conn, t_ns, raw, msg
 
     def _missing(self) -> list[str]:
@@ -261,7 +267,8 @@ class BagPlayer(LandingNode):
         if self._clock_pub is None:
             return
         self._clock_ns = max(self._clock_ns, t_ns)
-        self._clock_pub.publish(Clock(clock=Time(sec=self._clock_ns // 1_000_000_000, nanosec=self._clock_ns % 1_000_000_000)))
+        sec, nanosec = stamp_fields(self._clock_ns)
+        self._clock_pub.publish(Clock(clock=Time(sec=sec, nanosec=nanosec)))
 
     def _wait_for_ack(self, executor) -> None:
         """Wait for the acknowledgement of the pending frame (if any), at most ``ack_timeout_s``."""
@@ -286,18 +293,13 @@ class BagPlayer(LandingNode):
         super().destroy_node()
 
 
-def _header_stamp(msg) -> int | None:
-    header = getattr(msg, "header", None)
-    return None if header is None else stamp_ns(header.stamp)
-
-
 def _after_its_own(frame, held) -> list:
     """``held`` (the messages recorded after ``frame``) with those of the frame's bag time or
     header stamp moved before it."""
-    stamp = _header_stamp(frame[3])
+    stamp = header_stamp_ns(frame[3])
     own, rest = [], []
     for m in held:
-        (own if m[1] == frame[1] or (stamp is not None and _header_stamp(m[3]) == stamp) else rest).append(m)
+        (own if m[1] == frame[1] or (stamp is not None and header_stamp_ns(m[3]) == stamp) else rest).append(m)
     return own + [frame] + rest
 
 

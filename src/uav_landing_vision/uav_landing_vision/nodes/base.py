@@ -22,6 +22,7 @@ from rclpy.node import Node
 
 from ..camera import CameraInfoError
 from ..config import ConfigError, from_mapping
+from ..stamps import header_stamp_ns, stamp_ns
 from .participant import ImageParticipant
 from .qos import RELIABLE_QOS
 
@@ -29,7 +30,6 @@ DIAGNOSTICS_PERIOD_S = 1.0
 SHUTDOWN_GRACE_S = 1.0  # an error out of the executor is a stop when the context goes down this soon
 TEARDOWN_LIMIT_S = 5.0  # a node's teardown taking longer has hung: the process ends (run_node)
 DROP_LOG_PERIOD_S = 1.0  # a kind of drop is logged at most this often
-NANOSECONDS_PER_SECOND = 1_000_000_000
 # Parameters every rclpy node declares itself; they are not part of a node's configuration.
 ROS_PARAMETERS = frozenset({"use_sim_time", "start_type_description_service"})
 # What an executor can raise when Ctrl-C / SIGTERM end a node (see stopped_by_shutdown).
@@ -61,10 +61,10 @@ class LandingNode(Node):
         """rclpy's, with messages of a malformed header stamp dropped before ``callback``."""
 
         def checked(msg):
-            stamp = getattr(getattr(msg, "header", None), "stamp", None)
-            if stamp is not None and not stamp.nanosec < NANOSECONDS_PER_SECOND:
-                self.drop(f"{topic}: header stamp {stamp.sec} s + {stamp.nanosec} ns is malformed "
-                          f"(nanosec must be below {NANOSECONDS_PER_SECOND})")
+            try:
+                header_stamp_ns(msg)
+            except ValueError as exc:
+                self.drop(f"{topic}: {exc}")
                 return
             callback(msg)
 
@@ -178,11 +178,6 @@ class LandingNode(Node):
         msg = DiagnosticArray(status=[status])
         msg.header.stamp = self.get_clock().now().to_msg()
         self._diagnostics.publish(msg)
-
-
-def stamp_ns(stamp) -> int:
-    """A ``builtin_interfaces/Time`` as integer nanoseconds (the key of exact-time matching)."""
-    return stamp.sec * NANOSECONDS_PER_SECOND + stamp.nanosec
 
 
 def run_node(factory, args=None, run=None) -> int:

@@ -29,7 +29,8 @@ from ..detection.detector import Detector, DetectorConfig, search_window
 from ..detection.track_box import TrackBox, TrackBoxConfig
 from ..model import fixed_wing_mesh
 from ..render.boxes import projected_roi
-from .base import LandingNode, run_node, stamp_ns
+from ..stamps import stamp_ns
+from .base import LandingNode, run_node
 from .calibration import Calibration
 from .image import ImageError, image_to_rgb
 from .poses import pose_to_numpy

@@ -44,7 +44,8 @@ from ..evaluation import (
 )
 from ..evaluation.consistency import coverage_by_depth, format_coverage
 from ..sim import Poses, write_pose_csv
-from .base import SHUTDOWN_ERRORS, LandingNode, run_node, stamp_ns, stopped_by_shutdown
+from ..stamps import stamp_ns
+from .base import SHUTDOWN_ERRORS, LandingNode, run_node, stopped_by_shutdown
 from .poses import pose_to_numpy
 from .qos import KEEP_ALL_QOS
 

@@ -36,7 +36,8 @@ from uav_landing_msgs.msg import LandingGuidance, TrackerStatus
 
 from ..config import ConfigError
 from ..gcs import GcsBridge, GcsBridgeConfig
-from .base import LandingNode, run_node, stamp_ns
+from ..stamps import stamp_fields, stamp_ns
+from .base import LandingNode, run_node
 from .qos import RELIABLE_QOS
 
 LANDING_FRAME_ID = "landing"
@@ -129,7 +130,7 @@ class GcsBridgeNode(LandingNode):
         if pose_stamp is not None:
             msg.header.stamp = pose_stamp
         else:
-            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(round(g.stamp_s * 1e9), 1_000_000_000)
+            msg.header.stamp.sec, msg.header.stamp.nanosec = stamp_fields(round(g.stamp_s * 1e9))
         self._guidance.publish(msg)
         self.counters["published"] += 1
         self.counters["mavlink_sent"] += len(result.sent)

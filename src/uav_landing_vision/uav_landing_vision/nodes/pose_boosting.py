@@ -39,7 +39,8 @@ from ..boosting import DatabaseError, HypothesisConfig, PoseDatabase, PoseHypoth
 from ..boosting.obb import check_roi
 from ..config import ConfigError
 from ..resources import model_file
-from .base import LandingNode, run_node, stamp_ns
+from ..stamps import stamp_ns
+from .base import LandingNode, run_node
 from .calibration import Calibration
 from .image import ImageError, image_to_rgb
 from .poses import numpy_to_pose

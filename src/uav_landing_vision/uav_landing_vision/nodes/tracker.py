@@ -57,8 +57,9 @@ from ..model import fixed_wing_mesh
 from ..render import Renderer
 from ..render.context import GLContextError, gl_context
 from ..render.selftest import RendererSelfTestError, check_renderer
+from ..stamps import stamp_ns
 from ..tracking.upf import MAX_PREDICTION_STEPS, Tracker, TrackerConfig, gap_steps, render_batch
-from .base import LandingNode, run_node, stamp_ns
+from .base import LandingNode, run_node
 from .calibration import Calibration
 from .image import ImageError, image_to_rgb, numpy_to_image
 from .poses import numpy_to_pose, pose_to_numpy

@@ -16,6 +16,7 @@ from rosbags.rosbag2 import CompressionFormat, CompressionMode, Reader, StorageP
 from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
 
+from .. import stamps
 from ..camera import (
     DEFAULT_FRAME_ID, CameraModel, camera_from_info_msg, camera_info_fields, decode_compressed, save_camera_info_yaml,
 )
@@ -69,8 +70,9 @@ class SequenceWriter:
 
     def write(self, stamp_ns: int, image_rgb: np.ndarray, trans: np.ndarray, quat: np.ndarray) -> None:
         m = _TS.types
-        header = m["std_msgs/msg/Header"](stamp=m["builtin_interfaces/msg/Time"](sec=stamp_ns // 10**9,
-                                          nanosec=stamp_ns % 10**9), frame_id=self.camera.frame_id)
+        sec, nanosec = stamps.stamp_fields(stamp_ns)
+        header = m["std_msgs/msg/Header"](stamp=m["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec),
+                                          frame_id=self.camera.frame_id)
         h, w = image_rgb.shape[:2]
         image = m["sensor_msgs/msg/Image"](header=header, height=h, width=w, encoding="rgb8", is_bigendian=0,
                                            step=3 * w, data=np.ascontiguousarray(image_rgb).reshape(-1))
@@ -135,11 +137,11 @@ def bag_messages(reader: Reader, connections=()):
 
 
 def _stamp(header) -> int:
-    """A header's stamp in integer ns; :class:`BagError` for a malformed one (nanosec from 1e9 on)."""
-    sec, nanosec = int(header.stamp.sec), int(header.stamp.nanosec)
-    if not nanosec < 10**9:
-        raise BagError(f"a header stamp of {sec} s + {nanosec} ns is malformed (nanosec must be below 10^9)")
-    return sec * 10**9 + nanosec
+    """A header's stamp in integer ns; :class:`BagError` for a malformed one."""
+    try:
+        return stamps.stamp_ns(header.stamp)
+    except ValueError as exc:
+        raise BagError(str(exc)) from exc
 
 
 def _decode_image(msg) -> np.ndarray:
