@@ -45,6 +45,10 @@ def test_shipped_scenarios_load(name):
      r"approach.start_range_m must start beyond the net \(50.0 m from the camera\)"),
     ("approach: {}\nship: {camera_position_m: [5, 0, -3]}\n", "the camera must be above the waterline"),
     ("dt_s: 1.0e-7\napproach: {}\n", "dt_s must be at least 1e-06 s"),
+    ("approach: {}\nbackground: {sun_elevation_deg: -5}\n", r"sun_elevation_deg must be in \[0, 90\] \(above the horizon\), got -5"),
+    ("approach: {}\nbackground: {sun_elevation_deg: 200}\n", r"sun_elevation_deg must be in \[0, 90\]"),
+    ("single_frame: {distances_m: [5, 10], poses_per_distance: 100000000}\n",
+     "single_frame: 2 distances × 100000000 poses is over 1000000 frames"),
 ])
 def test_bad_scenarios_are_clear_errors(tmp_path, text, match):
     path = tmp_path / "bad.yaml"

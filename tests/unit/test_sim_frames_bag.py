@@ -24,6 +24,7 @@ from uav_landing_vision.sim import (
     scenario_camera,
     simulate,
 )
+from uav_landing_vision.sim import bag as sim_bag
 from uav_landing_vision.sim.synthesis import FrameSynthesizer, motion_blur_kernel
 
 MESH = fixed_wing_mesh("low")
@@ -116,6 +117,16 @@ def test_bag_roundtrip_and_determinism(tmp_path):
     other = simulate(s, tmp_path / "c", seed=5, frames=2, progress=False, mesh=MESH)
     assert other.frames == 2
     assert hashlib.sha256(next(iter_frames(tmp_path / "c"))[1].tobytes()).hexdigest() != hashes[0][0]
+
+
+def test_a_frame_that_cannot_be_written_as_png_stops_the_run_and_leaves_no_folder(tmp_path, monkeypatch):
+    """cv2.imwrite returns False (a full disk) instead of raising: the frame was lost, its truth row kept."""
+    s = load_scenario("normal")
+    s = dataclasses.replace(s, approach=dataclasses.replace(s.approach, start_range_m=(12.0, 14.0)))
+    monkeypatch.setattr(sim_bag.cv2, "imwrite", lambda *args: False)
+    with pytest.raises(OSError, match=r"cannot write the frame .*\.png"):
+        simulate(s, tmp_path / "bag", seed=4, frames=2, png_dir=tmp_path / "png", progress=False, mesh=MESH)
+    assert not (tmp_path / "png").exists() and not (tmp_path / "bag").exists()
 
 
 def test_video_background_loops_and_fills(tmp_path, setup):

@@ -86,7 +86,9 @@ class SequenceWriter:
         for topic, msg in ((IMAGE_TOPIC, image), (INFO_TOPIC, info), (TRUTH_TOPIC, truth)):
             self.writer.write(self.conn[topic], stamp_ns, _TS.serialize_cdr(msg, self.conn[topic].msgtype))
         if self._csv:
-            cv2.imwrite(str(self.png_dir / f"{stamp_ns}.png"), cv2.cvtColor(image_rgb, cv2.COLOR_RGB2BGR))
+            path = self.png_dir / f"{stamp_ns}.png"
+            if not cv2.imwrite(str(path), cv2.cvtColor(image_rgb, cv2.COLOR_RGB2BGR)):  # OpenCV returns False, not raises
+                raise OSError(f"cannot write the frame {path} (disk full or not writable?)")
             self._csv.writerow([stamp_ns, *map(repr, map(float, trans)), *map(repr, map(float, quat))])
 
     def close(self) -> None:

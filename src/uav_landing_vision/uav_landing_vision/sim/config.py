@@ -18,6 +18,9 @@ class ScenarioError(ConfigError):
     """A scenario file or value that the simulator cannot use."""
 
 
+MAX_FRAMES = 1_000_000  # longest sequence (an approach of a few days of simulation)
+
+
 @dataclass(frozen=True)
 class ApproachConfig:
     """Landing approach inside the landing cone (Fig. 1.5), relative to the ship."""
@@ -78,7 +81,7 @@ class BackgroundConfig:
     sun_azimuth_deg: float = 150.0  # from the ship's bow, positive to port
     sun_elevation_deg: float = 35.0
     cloud_drift_deg_s: float = 0.6  # complex: horizontal translation of the sky (wraps around)
-    sea_jitter_m: float = 0.05  # normal: random per-frame displacement of the sea surface (§6.2.1)
+    sea_jitter_m: float = 0.05  # normal and complex: random per-frame displacement of the sea surface (§6.2.1)
     video: str = ""  # video: a video file or a rosbag2 directory/file
     video_topic: str = ""  # video: image topic in a bag (default: the first sensor_msgs/Image)
 
@@ -147,8 +150,9 @@ def validate(s: Scenario, where: str = "scenario") -> Scenario:
     need(s.dt_s >= 1e-6, f"dt_s must be at least 1e-06 s (stamps are in ns), got {s.dt_s}")
     need(s.seed >= 0, f"seed must be non-negative, got {s.seed}")
     need(0 <= s.start_time_s < 2**31, f"start_time_s must be in [0, 2^31) s (a ROS time stamp), got {s.start_time_s}")
-    need(math.isfinite(s.background.sun_azimuth_deg) and math.isfinite(s.background.sun_elevation_deg),
-         "background.sun_azimuth_deg and sun_elevation_deg must be finite")
+    need(math.isfinite(s.background.sun_azimuth_deg), "background.sun_azimuth_deg must be finite")
+    need(0 <= s.background.sun_elevation_deg <= 90,
+         f"background.sun_elevation_deg must be in [0, 90] (above the horizon), got {s.background.sun_elevation_deg}")
     need(s.background.kind in BACKGROUND_KINDS, f"background.kind must be one of {BACKGROUND_KINDS}")
     need(s.background.sea_jitter_m >= 0, "background.sea_jitter_m must be non-negative")
     _need_non_negative(need, "ship", s.ship, ("roll_deg", "pitch_deg", "yaw_deg", "heave_m"))
@@ -176,6 +180,8 @@ def validate(s: Scenario, where: str = "scenario") -> Scenario:
     if f is not None:
         need(all(d > 0 for d in f.distances_m) and f.distances_m, "single_frame.distances_m must be positive")
         need(f.poses_per_distance >= 1, "single_frame.poses_per_distance must be at least 1")
+        need(len(f.distances_m) * f.poses_per_distance <= MAX_FRAMES,
+             f"single_frame: {len(f.distances_m)} distances × {f.poses_per_distance} poses is over {MAX_FRAMES} frames")
         need(0 < f.angle_limit_deg <= 180, "single_frame.angle_limit_deg must be in (0, 180]")
     need(s.ship.wave_period_s[0] > 0 and s.ship.wave_period_s[0] <= s.ship.wave_period_s[1], "ship.wave_period_s must be [low, high] > 0")
     need(s.ship.net_height_m > 0, "ship.net_height_m must be positive")

@@ -22,10 +22,9 @@ from ..geometry import (
     quat_multiply,
     quat_normalise,
 )
-from .config import ApproachConfig, ScenarioError, ShipConfig, SingleFrameConfig
+from .config import MAX_FRAMES, ApproachConfig, ScenarioError, ShipConfig, SingleFrameConfig
 
 GRAVITY = 9.81
-MAX_FRAMES = 1_000_000  # longest approach (a few days of simulation)
 # Columns: the optical axes (x right, y down, z forward) in the camera body frame (x forward, y left, z up).
 BODY_FROM_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 # The UAV facing the camera, upright: body x → −z_C, body y (left wing) → +x_C, body z → −y_C.
