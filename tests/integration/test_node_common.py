@@ -1,6 +1,7 @@
 """Shared node pieces (image conversion, QoS, stamp matching, parameters → config, /diagnostics), and the
 in-process rclpy harness and bag/image helpers the other ``test_node_*`` modules import."""
 
+import math
 import os
 import signal
 import subprocess
@@ -26,7 +27,7 @@ from rosbags.typesys import Stores, get_typestore
 from sensor_msgs.msg import CameraInfo, Image
 
 from uav_landing_vision.camera import CameraInfoError, CameraModel, camera_info_fields
-from uav_landing_vision.config import ConfigError
+from uav_landing_vision.config import ConfigError, load_node_parameters
 from uav_landing_vision.nodes import base
 from uav_landing_vision.nodes.base import LandingNode, run_node
 from uav_landing_vision.nodes.calibration import Calibration
@@ -261,6 +262,24 @@ class _Probe(LandingNode):
     def __init__(self, **kwargs):
         super().__init__("config_probe", **kwargs)
         self.config = self.load_config(_Config)
+
+
+SCALARS = ["1e-3", "1.0e3", "1E3", "+.5e+2", "6.8523015e+5", ".5", "5.", "-.inf", ".NaN", "09", "1_000", "1:30",
+           "0b11", "0o10", "0x10", "010", "+5", "-0", "12e", "yes", "Off", "2.5", "fast"]
+
+
+def test_the_cli_reads_a_parameter_files_scalars_as_rcl_does(ros, tmp_path):
+    """rcl's parser is the oracle: PyYAML's YAML 1.1 read 1e-3 as a string (so a tracker.yaml the
+    node took failed `uav-landing evaluate`) and 1_000 or 1:30 as integers, which rcl reads as strings."""
+    params = tmp_path / "scalars.yaml"
+    params.write_text("scalars:\n  ros__parameters:\n" + "".join(f"    p{i}: {v}\n" for i, v in enumerate(SCALARS)))
+    node = ros.add(Node("scalars", context=ros.context, automatically_declare_parameters_from_overrides=True,
+                        cli_args=["--ros-args", "--params-file", str(params)]))
+    ours = load_node_parameters(params, "scalars")
+    for i, text in enumerate(SCALARS):
+        theirs = node.get_parameter(f"p{i}").value
+        assert type(ours[f"p{i}"]) is type(theirs), text
+        assert ours[f"p{i}"] == theirs or (math.isnan(theirs) and math.isnan(ours[f"p{i}"])), text
 
 
 def test_config_from_params_file_nested_groups_and_defaults(ros, tmp_path):

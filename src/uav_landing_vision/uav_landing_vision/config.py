@@ -8,6 +8,7 @@ errors that name the file and the key.
 
 import dataclasses
 import math
+import re
 import types
 import typing
 from collections.abc import Hashable
@@ -21,7 +22,8 @@ class ConfigError(ValueError):
 
 
 class UniqueKeyLoader(yaml.SafeLoader):
-    """PyYAML's safe loader, except that a mapping giving the same key twice is an error."""
+    """PyYAML's safe loader with ROS 2's numbers (below), and a mapping that gives the same key
+    twice is an error."""
 
     def construct_mapping(self, node, deep=False):
         seen = set()
@@ -36,6 +38,22 @@ class UniqueKeyLoader(yaml.SafeLoader):
                     problem=f"duplicate key {key!r} on line {key_node.start_mark.line + 1}")
             seen.add(key)
         return super().construct_mapping(node, deep)
+
+
+# Numbers as rcl's parameter parser reads them (strtol with base 0, then strtod), so that the CLI
+# and the nodes read a file alike: PyYAML's YAML 1.1 reads 1e-3 as a string, and 1_000, 1:30 and
+# 0b11 as integers, which rcl reads as strings.
+_INT = "tag:yaml.org,2002:int"
+_FLOAT = "tag:yaml.org,2002:float"
+UniqueKeyLoader.yaml_implicit_resolvers = {
+    first: [(tag, regexp) for tag, regexp in resolvers if tag not in (_INT, _FLOAT)]
+    for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()
+}
+UniqueKeyLoader.add_implicit_resolver(
+    _INT, re.compile(r"^[-+]?(?:0|[1-9][0-9]*|0[0-7]+|0[xX][0-9a-fA-F]+)$"), list("-+0123456789"))
+UniqueKeyLoader.add_implicit_resolver(
+    _FLOAT, re.compile(r"^(?:[-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][-+]?[0-9]+)?"
+                       r"|[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN))$"), list("-+0123456789."))
 
 
 def load_node_parameters(path, node: str) -> dict:
