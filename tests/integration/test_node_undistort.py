@@ -238,9 +238,13 @@ def test_a_compressed_camera_with_image_transport_compressed(ros):
     huge = compressed_msg(bgr, ".jpg", "jpeg")  # its frame header (SOF0) says 65000 x 65000: OpenCV raised, the node died
     sof = bytes(huge.data).index(b"\xff\xc0")
     huge.data = bytes(huge.data[:sof + 5]) + (65000).to_bytes(2, "big") * 2 + bytes(huge.data[sof + 9:])
-    assert rig.send_image(huge) is None and "OpenCV refused it" in rig.node.last_error
+    assert rig.send_image(huge) is None and "claims too many pixels" in rig.node.last_error
+    # A header of 12000 x 12000 on a few hundred bytes: OpenCV decoded it (gigabytes, seconds) before the size check.
+    large = compressed_msg(bgr, ".jpg", "jpeg")
+    large.data = bytes(large.data[:sof + 5]) + (12000).to_bytes(2, "big") * 2 + bytes(large.data[sof + 9:])
+    assert rig.send_image(large) is None and "compressed image is 12000x12000, expected 40x30" in rig.node.last_error
     small = compressed_msg(np.zeros((20, 40, 3), np.uint8), ".png", "png")
-    assert rig.send_image(small) is None and "image is 40x20 but the calibration is 40x30" in rig.node.last_error
+    assert rig.send_image(small) is None and "compressed image is 40x20, expected 40x30" in rig.node.last_error
     assert rig.send_image(raw) is not None
 
 

@@ -66,8 +66,9 @@ def _jpeg_header(width: int, height: int) -> bytes:
 
 @pytest.mark.parametrize("data, fmt, message", [
     # OpenCV raised cv2.error here, not a ValueError: one such frame stopped the undistort node.
-    (_png_header(40000, 40000), "png", "cannot decode the compressed image (65 bytes, format 'png'): OpenCV refused it ("),
-    (_jpeg_header(65000, 65000), "jpeg", "cannot decode the compressed image ("),
+    (_png_header(40000, 40000), "png", "compressed image (format 'png') claims too many pixels"),
+    (_jpeg_header(65000, 65000), "jpeg", "compressed image (format 'jpeg') claims too many pixels"),
+    (_png_header(16385, 10), "png", "compressed image (format 'png') claims 16385x10 pixels, over 16384 a side"),
     (b"", "jpeg", "cannot decode the compressed image (0 bytes, format 'jpeg')"),
     (b"\xff\xd8\xff not really a jpeg", "jpeg", "cannot decode the compressed image (21 bytes"),
     (None, "16UC1; png compressed", "has uint16 pixels, expected 8-bit"),
@@ -79,3 +80,16 @@ def test_what_cannot_be_a_camera_frame_is_refused_by_name(data, fmt, message):
     with pytest.raises(ValueError) as err:
         decode_compressed(data, fmt)
     assert message in str(err.value)
+
+
+def test_a_header_of_another_size_than_expected_is_refused_before_decoding(monkeypatch):
+    """A 629-byte JPEG whose header says 12000 x 12000 decoded to 432 MB in seconds; with the
+    calibration's size given, the header alone refuses it."""
+    decoded = []
+    monkeypatch.setattr(cv2, "imdecode", lambda *args: decoded.append(args))
+    with pytest.raises(ValueError, match="compressed image is 12000x12000, expected 64x48"):
+        decode_compressed(_jpeg_header(12000, 12000), "jpeg", size=(64, 48))
+    assert decoded == []
+    monkeypatch.undo()
+    pixels, _ = decode_compressed(_encode(".png", _frame()), "png", size=(64, 48))
+    assert pixels.shape == (48, 64, 3)

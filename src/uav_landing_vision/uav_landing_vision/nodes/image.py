@@ -38,11 +38,12 @@ def image_to_numpy(msg: Image) -> np.ndarray:
     return rows.reshape(height, width, channels) if channels > 1 else rows
 
 
-def compressed_to_numpy(msg: CompressedImage) -> tuple[np.ndarray, str]:
+def compressed_to_numpy(msg: CompressedImage, size: tuple[int, int] | None = None) -> tuple[np.ndarray, str]:
     """``(pixels, encoding)`` of a compressed frame: ``bgr8`` colour or ``mono8`` grey, as
-    :func:`image_to_numpy` gives them; :class:`ImageError` if it cannot be decoded."""
+    :func:`image_to_numpy` gives them; :class:`ImageError` if it cannot be decoded or its header
+    is not of ``size`` ``(width, height)``, when given (checked before decoding)."""
     try:
-        return decode_compressed(msg.data, msg.format)
+        return decode_compressed(msg.data, msg.format, size)
     except ValueError as exc:
         raise ImageError(str(exc)) from exc
 

@@ -105,7 +105,7 @@ class Undistort(LandingNode):
         camera = self._camera
         try:
             if isinstance(msg, CompressedImage):
-                raw, encoding = compressed_to_numpy(msg)
+                raw, encoding = compressed_to_numpy(msg, (camera.width, camera.height))
             else:
                 raw, encoding = image_to_numpy(msg), msg.encoding
         except ImageError as exc:
