@@ -315,6 +315,14 @@ def test_one_context_per_process(renderer):
     assert isinstance(renderer.gl_renderer, str) and renderer.gl_renderer
 
 
+def test_releasing_twice_does_nothing_the_second_time(camera, mesh):
+    """`with Renderer(...) as r: ... r.release()` raised TypeError on leaving the block."""
+    with Renderer(camera, mesh, tile=TILE, max_batch=2) as r:
+        r.shaded(np.array([[0.0, 0.0, 0.0, 1.0]]), np.array([[0.0, 0.0, 10.0]]),
+                 np.zeros((camera.height, camera.width, 3), np.uint8), samples=4)
+        r.release()
+
+
 def test_returned_masks_are_not_overwritten_by_the_next_batch(camera, mesh, poses):
     """With max_batch=1 the atlas is one tile wide, so the masks were a view of the renderer's
     readback buffer: the next call rewrote the previous batch's masks."""

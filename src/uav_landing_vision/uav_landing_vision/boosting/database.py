@@ -204,18 +204,18 @@ def build_database(camera: CameraModel, mesh, config: DatabaseConfig = DatabaseC
     camera = camera.rectified()
     quats = sample_orientations(config.count, config.half_range_deg, np.random.default_rng(config.seed))
     trans = np.array([0.0, 0.0, config.distance])
-    renderer = Renderer(camera, mesh)
-    obbs = np.full((config.count, 5), np.nan)
-    for i in _progress(config.count, progress):
-        mask = renderer.silhouette_full(quats[i], trans)
-        if mask[[0, -1]].any() or mask[:, [0, -1]].any():
-            raise ValueError(
-                f"the model's silhouette (entry {i}) leaves the {camera.width}x{camera.height} image at "
-                f"Z = {config.distance:g} m; build the database at a larger distance (--distance)"
-            )
-        box = obb_from_mask(mask)
-        if box is not None:
-            obbs[i] = box
+    with Renderer(camera, mesh) as renderer:
+        obbs = np.full((config.count, 5), np.nan)
+        for i in _progress(config.count, progress):
+            mask = renderer.silhouette_full(quats[i], trans)
+            if mask[[0, -1]].any() or mask[:, [0, -1]].any():
+                raise ValueError(
+                    f"the model's silhouette (entry {i}) leaves the {camera.width}x{camera.height} image at "
+                    f"Z = {config.distance:g} m; build the database at a larger distance (--distance)"
+                )
+            box = obb_from_mask(mask)
+            if box is not None:
+                obbs[i] = box
     keep = np.all(np.isfinite(obbs), axis=1)
     return PoseDatabase(
         quats[keep], obbs[keep], distance=config.distance, camera=camera,

@@ -128,38 +128,38 @@ def evaluate_boosting(camera: CameraModel, mesh, config: BoostingEvalConfig = Bo
     camera = camera.rectified()
     db = PoseDatabase.load(database_path or model_path(DEFAULT_FILE), camera=camera, mesh=mesh,
                            aspect_weight=config.aspect_weight)
-    renderer = Renderer(camera, mesh)
-    backgrounds, sun, albedo = normal_backgrounds(camera, BACKGROUND_FRAMES, config.seed)
-    radius = float(np.max(np.linalg.norm(mesh.vertices, axis=1)))
-    kmax, top = max(config.top), tuple(config.top)
-    stats, failures = {}, {}
-    for d_i, distance in enumerate(config.distances):
-        # A spawn key keeps these draws independent of a database built with the same seed.
-        rng = np.random.default_rng(np.random.SeedSequence(config.seed, spawn_key=(1, d_i)))
-        quats = sample_orientations(config.samples, db.half_range_deg, rng)
-        if config.placement == "axis":
-            trans = np.tile([0.0, 0.0, distance], (config.samples, 1))
-        else:
-            trans = sample_positions(camera, distance, radius, config.samples, rng)
-        t_err = np.full((config.samples, len(top), 3), np.nan)
-        r_err = np.full((config.samples, len(top), 3), np.nan)
-        for i in tqdm(range(config.samples), desc=f"{distance:g} m", disable=not progress, file=sys.stderr,
-                      mininterval=2.0):
-            _, hyp = rendered_hypotheses(renderer, db, camera, quats[i], trans[i], backgrounds[i % len(backgrounds)],
-                                         sun, albedo, config.fast, kmax, config.centre_offset, config.turn_orientation)
-            if hyp is None:
-                continue
-            t_err[i], r_err[i] = closest_errors(quats[i], trans[i], hyp.quats, hyp.positions, top)
-        ok = np.isfinite(t_err[:, 0, 0])
-        failures[f"{distance:g}"] = int(np.sum(~ok))
-        stats[f"{distance:g}"] = {
-            str(k): {
-                "translation_m": {a: error_statistics(t_err[ok, j, c]) for c, a in enumerate("xyz")},
-                "rotation_deg": {a: error_statistics(np.degrees(r_err[ok, j, c]))
-                                 for c, a in enumerate(("alpha", "beta", "gamma"))},
+    with Renderer(camera, mesh) as renderer:
+        backgrounds, sun, albedo = normal_backgrounds(camera, BACKGROUND_FRAMES, config.seed)
+        radius = float(np.max(np.linalg.norm(mesh.vertices, axis=1)))
+        kmax, top = max(config.top), tuple(config.top)
+        stats, failures = {}, {}
+        for d_i, distance in enumerate(config.distances):
+            # A spawn key keeps these draws independent of a database built with the same seed.
+            rng = np.random.default_rng(np.random.SeedSequence(config.seed, spawn_key=(1, d_i)))
+            quats = sample_orientations(config.samples, db.half_range_deg, rng)
+            if config.placement == "axis":
+                trans = np.tile([0.0, 0.0, distance], (config.samples, 1))
+            else:
+                trans = sample_positions(camera, distance, radius, config.samples, rng)
+            t_err = np.full((config.samples, len(top), 3), np.nan)
+            r_err = np.full((config.samples, len(top), 3), np.nan)
+            for i in tqdm(range(config.samples), desc=f"{distance:g} m", disable=not progress, file=sys.stderr,
+                          mininterval=2.0):
+                _, hyp = rendered_hypotheses(renderer, db, camera, quats[i], trans[i], backgrounds[i % len(backgrounds)],
+                                             sun, albedo, config.fast, kmax, config.centre_offset, config.turn_orientation)
+                if hyp is None:
+                    continue
+                t_err[i], r_err[i] = closest_errors(quats[i], trans[i], hyp.quats, hyp.positions, top)
+            ok = np.isfinite(t_err[:, 0, 0])
+            failures[f"{distance:g}"] = int(np.sum(~ok))
+            stats[f"{distance:g}"] = {
+                str(k): {
+                    "translation_m": {a: error_statistics(t_err[ok, j, c]) for c, a in enumerate("xyz")},
+                    "rotation_deg": {a: error_statistics(np.degrees(r_err[ok, j, c]))
+                                     for c, a in enumerate(("alpha", "beta", "gamma"))},
+                }
+                for j, k in enumerate(top)
             }
-            for j, k in enumerate(top)
-        }
     return {"stats": stats, "failures": failures, "samples": config.samples, "database_entries": len(db)}
 
 

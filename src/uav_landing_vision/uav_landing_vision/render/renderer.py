@@ -123,8 +123,8 @@ class Renderer:
 
     def release(self) -> None:
         """Free this renderer's GL objects (moderngl frees none when they are garbage collected),
-        also those of one whose construction failed partway; the renderer is unusable afterwards.
-        The shared context stays."""
+        also those of one whose construction failed partway; the renderer is unusable afterwards,
+        and a second call does nothing. The shared context stays."""
         made = [getattr(self, name, None) for name in _GL_OBJECTS]
         framebuffers = [fbo for fbo in made[-3:] if fbo is not None] + list(self._msaa.values())
         for obj in made[:-3]:
@@ -137,6 +137,8 @@ class Renderer:
                 if attachment is not None:
                     attachment.release()
         self._msaa.clear()
+        for name in _GL_OBJECTS:
+            setattr(self, name, None)
 
     @property
     def gl_renderer(self) -> str:

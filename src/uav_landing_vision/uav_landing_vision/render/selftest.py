@@ -18,7 +18,6 @@ The shipped reference was made with Mesa llvmpipe (Debian 12) by::
 """
 
 import argparse
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -105,7 +104,7 @@ def load_reference(path=None) -> dict:
         if m == 0 or wrong:
             raise ValueError(f"inconsistent shapes: {', '.join(wrong) or 'no poses'}")
         ref["camera"] = CameraModel(int(ref["size"][0]), int(ref["size"][1]), ref["K"])
-    except (OSError, ValueError, zipfile.BadZipFile) as exc:
+    except Exception as exc:  # zip, zlib, .npy header and value errors of a damaged file
         raise RendererSelfTestError(f"render reference {path}: {exc}") from exc
     return ref
 

@@ -99,23 +99,23 @@ def simulate(scenario: Scenario, bag_dir, *, seed: int | None = None, frames: in
         raise ScenarioError(f"frame {late[0]} would be stamped {stamps[late[0]] / 1e9:.3f} s, past the ROS time "
                             "range (2^31 s): lower start_time_s")
     camera = scenario_camera(scenario)
-    synth = FrameSynthesizer(camera, scenario.imaging, mesh)
-    background = make_background(scenario.background, synth.render_camera, scenario.ship, rngs["background"], video)
-    sun = sun_direction(scenario)
-    centres = synth.render_camera.project_pinhole(traj.trans)
-    shifts = np.zeros_like(centres)
-    if traj.continuous:
-        shifts[1:] = np.diff(centres, axis=0) * scenario.imaging.exposure_fraction
-        lengths = np.linalg.norm(shifts, axis=1, keepdims=True)
-        shifts *= np.minimum(1.0, scenario.imaging.max_blur_px / np.maximum(lengths, 1e-9))
+    with FrameSynthesizer(camera, scenario.imaging, mesh) as synth:
+        background = make_background(scenario.background, synth.render_camera, scenario.ship, rngs["background"], video)
+        sun = sun_direction(scenario)
+        centres = synth.render_camera.project_pinhole(traj.trans)
+        shifts = np.zeros_like(centres)
+        if traj.continuous:
+            shifts[1:] = np.diff(centres, axis=0) * scenario.imaging.exposure_fraction
+            lengths = np.linalg.norm(shifts, axis=1, keepdims=True)
+            shifts *= np.minimum(1.0, scenario.imaging.max_blur_px / np.maximum(lengths, 1e-9))
 
-    with ExitStack() as stack:
-        bag = stack.enter_context(staged(Path(bag_dir)))
-        png = stack.enter_context(staged(Path(png_dir))) if png_dir else None
-        writer = stack.enter_context(SequenceWriter(bag, camera, png_dir=png, compress=compress))
-        for i in tqdm(range(len(traj)), desc=f"simulate {scenario.name}", unit="frame", disable=not progress):
-            bg = background.frame(i, traj.times_s[i], traj.cam_rot[i], traj.cam_pos[i])
-            light = traj.cam_rot[i].T @ sun
-            raw, _ = synth.frame(bg, traj.quat[i], traj.trans[i], light, shifts[i], rngs["noise"])
-            writer.write(int(stamps[i]), raw, traj.trans[i], traj.quat[i])
+        with ExitStack() as stack:
+            bag = stack.enter_context(staged(Path(bag_dir)))
+            png = stack.enter_context(staged(Path(png_dir))) if png_dir else None
+            writer = stack.enter_context(SequenceWriter(bag, camera, png_dir=png, compress=compress))
+            for i in tqdm(range(len(traj)), desc=f"simulate {scenario.name}", unit="frame", disable=not progress):
+                bg = background.frame(i, traj.times_s[i], traj.cam_rot[i], traj.cam_pos[i])
+                light = traj.cam_rot[i].T @ sun
+                raw, _ = synth.frame(bg, traj.quat[i], traj.trans[i], light, shifts[i], rngs["noise"])
+                writer.write(int(stamps[i]), raw, traj.trans[i], traj.quat[i])
     return SimulationResult(len(traj), time.perf_counter() - start, Path(bag_dir))

@@ -42,7 +42,8 @@ def motion_blur_kernel(shift_px: np.ndarray) -> np.ndarray | None:
 
 
 class FrameSynthesizer:
-    """Turns (background, pose) into the raw camera frame; one renderer for the whole sequence."""
+    """Turns (background, pose) into the raw camera frame; one renderer for the whole sequence,
+    released on leaving a ``with`` block."""
 
     def __init__(self, camera: CameraModel, imaging: ImagingConfig, mesh=None):
         from ..model import fixed_wing_mesh
@@ -52,6 +53,12 @@ class FrameSynthesizer:
         self.render_camera, mx, my = render_camera_for(camera)
         self.map1, self.map2 = cv2.convertMaps(mx, my, cv2.CV_16SC2)
         self.renderer = Renderer(self.render_camera, mesh if mesh is not None else fixed_wing_mesh("high"))
+
+    def __enter__(self) -> "FrameSynthesizer":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.renderer.release()
 
     def frame(self, background: np.ndarray, quat, trans, light_dir, blur_shift_px, rng: np.random.Generator):
         """Raw RGB uint8 frame and the UAV's coverage (alpha) in the raw image.

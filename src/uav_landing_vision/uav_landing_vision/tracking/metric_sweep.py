@@ -105,12 +105,12 @@ def sweep_frame(background: str = "normal", distance: float = NOMINAL_DISTANCE_M
     scenario = load_scenario(background)
     camera = scenario_camera(scenario).rectified()
     rngs = generators(seed)
-    synth = FrameSynthesizer(camera, scenario.imaging)
-    sky = make_background(scenario.background, synth.render_camera, scenario.ship, rngs["background"])
-    cam_rot, cam_pos = camera_mount(scenario.ship)
-    light = cam_rot.T @ sun_direction(scenario)
-    quat, trans = nominal_pose(distance)
-    frame, _ = synth.frame(sky.frame(0, 0.0, cam_rot, cam_pos), quat, trans, light, np.zeros(2), rngs["noise"])
+    with FrameSynthesizer(camera, scenario.imaging) as synth:
+        sky = make_background(scenario.background, synth.render_camera, scenario.ship, rngs["background"])
+        cam_rot, cam_pos = camera_mount(scenario.ship)
+        light = cam_rot.T @ sun_direction(scenario)
+        quat, trans = nominal_pose(distance)
+        frame, _ = synth.frame(sky.frame(0, 0.0, cam_rot, cam_pos), quat, trans, light, np.zeros(2), rngs["noise"])
     return camera, frame
 
 
@@ -126,25 +126,25 @@ def run_sweep(metrics=tuple(VARIANTS), distance: float = NOMINAL_DISTANCE_M, bac
     if not 0.5 < distance < np.inf:
         raise ValueError(f"distance must be finite and exceed 0.5 m, got {distance}")
     camera, frame = sweep_frame(background, distance, seed)
-    renderer = Renderer(camera, fixed_wing_mesh("low"), tile=tile, max_batch=512)
-    scorers = {}
-    for metric in metrics:
-        for label, config in VARIANTS[metric].items():
-            scorers[label] = make_likelihood(metric, renderer, config)
-            scorers[label].prepare(frame)
-    tests = []
-    for test in table_6_4(distance):
-        batch = renderer.silhouettes(*swept_poses(test, distance))
-        truth = truth_value(test, distance)
-        curves, peaks = {}, {}
-        for label, scorer in scorers.items():
-            curve = scorer.score_batch(batch)
-            curves[label] = curve.tolist()
-            peaks[label] = {"at": float(test.values[np.argmax(curve)]), "value": float(curve.max()),
-                            "at_truth": float(curve[np.argmin(np.abs(test.values - truth))])}
-        tests.append({"number": test.number, "title": test.title, "kind": test.kind, "axis": "XYZ"[test.axis],
-                      "unit": test.unit, "truth": truth, "values": test.values.tolist(),
-                      "curves": curves, "peaks": peaks})
+    with Renderer(camera, fixed_wing_mesh("low"), tile=tile, max_batch=512) as renderer:
+        scorers = {}
+        for metric in metrics:
+            for label, config in VARIANTS[metric].items():
+                scorers[label] = make_likelihood(metric, renderer, config)
+                scorers[label].prepare(frame)
+        tests = []
+        for test in table_6_4(distance):
+            batch = renderer.silhouettes(*swept_poses(test, distance))
+            truth = truth_value(test, distance)
+            curves, peaks = {}, {}
+            for label, scorer in scorers.items():
+                curve = scorer.score_batch(batch)
+                curves[label] = curve.tolist()
+                peaks[label] = {"at": float(test.values[np.argmax(curve)]), "value": float(curve.max()),
+                                "at_truth": float(curve[np.argmin(np.abs(test.values - truth))])}
+            tests.append({"number": test.number, "title": test.title, "kind": test.kind, "axis": "XYZ"[test.axis],
+                          "unit": test.unit, "truth": truth, "values": test.values.tolist(),
+                          "curves": curves, "peaks": peaks})
     return {"background": background, "distance_m": distance, "seed": seed, "tile": tile, "tests": tests}
 
 

@@ -71,47 +71,47 @@ def evaluate_optimisers(camera, mesh, config: OptimiserEvalConfig = OptimiserEva
     camera = camera.rectified()
     tracker = load_tracker_config()
     db = PoseDatabase.load(database_path or model_path(DEFAULT_FILE), camera=camera, mesh=mesh)
-    shading = Renderer(camera, mesh)
-    scoring = Renderer(camera, fixed_wing_mesh("low"), tile=tracker.tile, max_batch=max(512, config.particles))
-    likelihood = make_likelihood("colour", scoring, tracker.colour)
-    backgrounds, sun, albedo = normal_backgrounds(camera, BACKGROUND_FRAMES, config.seed)
-    methods = ("boosting", *config.optimisers)
-    stats, failures, best_likelihood = {}, {}, {}
-    for d_i, distance in enumerate(config.distances):
-        rng = np.random.default_rng(np.random.SeedSequence(config.seed, spawn_key=(2, d_i)))
-        quats = sample_orientations(config.samples, db.half_range_deg, rng)
-        trans = np.array([0.0, 0.0, distance])
-        t_err = {m: np.full((config.samples, 3), np.nan) for m in methods}
-        r_err = {m: np.full((config.samples, 3), np.nan) for m in methods}
-        scores = {m: np.full(config.samples, np.nan) for m in methods}
-        for i in tqdm(range(config.samples), desc=f"{distance:g} m", disable=not progress, file=sys.stderr,
-                      mininterval=2.0):
-            frame, hyp = rendered_hypotheses(shading, db, camera, quats[i], trans, backgrounds[i % len(backgrounds)],
-                                             sun, albedo, FastConfig(), config.particles)
-            if hyp is None:
-                continue
-            likelihood.prepare(frame)
-            start = ParticleSet.from_poses(hyp.positions, quat_normalise(hyp.quats))
-            start = start.with_weight(likelihood(start))
-            for j, method in enumerate(methods):
-                if method == "boosting":
-                    out = start
-                else:  # each optimiser with its own generator, from the same hypotheses
-                    opt_rng = np.random.default_rng(np.random.SeedSequence(config.seed, spawn_key=(3, d_i, i, j)))
-                    out = make_optimiser(method, config.pfo).run(start, likelihood, opt_rng, config.iterations)
-                best = out.best()
-                t_err[method][i] = best.pos[0] - trans
-                r_err[method][i] = euler_error(quats[i][None], best.quat)[0]
-                scores[method][i] = best.weight[0]
-        key = f"{distance:g}"
-        failures[key] = int(np.sum(~np.isfinite(scores["boosting"])))
-        stats[key] = {m: {
-            "translation_m": {a: error_statistics(t_err[m][:, c]) for c, a in enumerate("xyz")},
-            "rotation_deg": {a: error_statistics(np.degrees(r_err[m][:, c]))
-                             for c, a in enumerate(("alpha", "beta", "gamma"))},
-        } for m in methods}
-        best_likelihood[key] = {m: float(np.nanmean(scores[m])) if np.isfinite(scores[m]).any() else float("nan")
-                                for m in methods}
+    with Renderer(camera, mesh) as shading, \
+            Renderer(camera, fixed_wing_mesh("low"), tile=tracker.tile, max_batch=max(512, config.particles)) as scoring:
+        likelihood = make_likelihood("colour", scoring, tracker.colour)
+        backgrounds, sun, albedo = normal_backgrounds(camera, BACKGROUND_FRAMES, config.seed)
+        methods = ("boosting", *config.optimisers)
+        stats, failures, best_likelihood = {}, {}, {}
+        for d_i, distance in enumerate(config.distances):
+            rng = np.random.default_rng(np.random.SeedSequence(config.seed, spawn_key=(2, d_i)))
+            quats = sample_orientations(config.samples, db.half_range_deg, rng)
+            trans = np.array([0.0, 0.0, distance])
+            t_err = {m: np.full((config.samples, 3), np.nan) for m in methods}
+            r_err = {m: np.full((config.samples, 3), np.nan) for m in methods}
+            scores = {m: np.full(config.samples, np.nan) for m in methods}
+            for i in tqdm(range(config.samples), desc=f"{distance:g} m", disable=not progress, file=sys.stderr,
+                          mininterval=2.0):
+                frame, hyp = rendered_hypotheses(shading, db, camera, quats[i], trans, backgrounds[i % len(backgrounds)],
+                                                 sun, albedo, FastConfig(), config.particles)
+                if hyp is None:
+                    continue
+                likelihood.prepare(frame)
+                start = ParticleSet.from_poses(hyp.positions, quat_normalise(hyp.quats))
+                start = start.with_weight(likelihood(start))
+                for j, method in enumerate(methods):
+                    if method == "boosting":
+                        out = start
+                    else:  # each optimiser with its own generator, from the same hypotheses
+                        opt_rng = np.random.default_rng(np.random.SeedSequence(config.seed, spawn_key=(3, d_i, i, j)))
+                        out = make_optimiser(method, config.pfo).run(start, likelihood, opt_rng, config.iterations)
+                    best = out.best()
+                    t_err[method][i] = best.pos[0] - trans
+                    r_err[method][i] = euler_error(quats[i][None], best.quat)[0]
+                    scores[method][i] = best.weight[0]
+            key = f"{distance:g}"
+            failures[key] = int(np.sum(~np.isfinite(scores["boosting"])))
+            stats[key] = {m: {
+                "translation_m": {a: error_statistics(t_err[m][:, c]) for c, a in enumerate("xyz")},
+                "rotation_deg": {a: error_statistics(np.degrees(r_err[m][:, c]))
+                                 for c, a in enumerate(("alpha", "beta", "gamma"))},
+            } for m in methods}
+            best_likelihood[key] = {m: float(np.nanmean(scores[m])) if np.isfinite(scores[m]).any() else float("nan")
+                                    for m in methods}
     return {"stats": stats, "failures": failures, "samples": config.samples, "best_likelihood": best_likelihood}
 
 
