@@ -204,8 +204,13 @@ def test_poses_without_ground_truth_are_bounded(ros, tmp_path):
     assert len(node.estimates) == len(node.covariances) == 2 * limit + 50
     assert node.counters["poses_without_truth_dropped"] == 50
     frames = len(node.truth)
-    summary = json.loads((node.write() / "summary.json").read_text())
+    report = node.write()
+    summary = json.loads((report / "summary.json").read_text())
     assert summary["frames"] == frames and summary["variants"]["C4N2"]["lost_frames_pct"] == 0.0
+    # The report counts the forgotten ones too (it said "300 poses" for 350).
+    first_kept = stamp_ns(stamped(pose_msg(0), 50).header.stamp)
+    assert f"UNSCORED: {limit + 49} poses without ground truth (the oldest 50 forgotten), stamped (ns) {first_kept}, " in (
+        report / "tables.txt").read_text()
 
 
 @pytest.mark.parametrize(

@@ -1,8 +1,10 @@
 """The ``uav-landing`` command: every registered subcommand parses; the demo refuses bad arguments."""
 
+import numpy as np
 import pytest
 
 from uav_landing_vision.cli import build_parser, main
+from uav_landing_vision.sim import Poses, write_pose_csv
 
 
 def test_every_subcommand_has_help(capsys):
@@ -169,3 +171,16 @@ def test_score_says_how_many_frames_its_tables_cover(tmp_path, capsys):
     assert json.loads((tmp_path / "s.json").read_text())["variants"]["C4N2"]["lost_frames_pct"] == 50.0
     assert main([*argv, "--json", str(tmp_path / "r.json"), "--report-dir", str(tmp_path / "report")]) == 0
     assert "C4N2: statistics over 2 of 4 frames (50.0 % lost)" in capsys.readouterr().out
+
+
+def test_score_takes_the_estimates_of_a_run_that_posed_no_frame(tmp_path, capsys):
+    """The evaluator writes estimates.csv "for uav-landing score", a header alone when every frame
+    was lost; score refused it (no poses) where the evaluator's own summary said 100 % lost."""
+    import json
+
+    (tmp_path / "truth.csv").write_text("stamp_ns,x,y,z,qx,qy,qz,qw\n10,0,0,5,0,0,0,1\n20,0,0,6,0,0,0,1\n")
+    write_pose_csv(tmp_path / "est.csv", Poses(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 4))))
+    argv = ["score", "--truth", str(tmp_path / "truth.csv"), "--estimate", str(tmp_path / "est.csv"), "--name", "C4N2"]
+    assert main([*argv, "--json", str(tmp_path / "s.json")]) == 0
+    assert "C4N2: statistics over 0 of 2 frames (100.0 % lost)" in capsys.readouterr().out
+    assert json.loads((tmp_path / "s.json").read_text())["variants"]["C4N2"]["lost_frames_pct"] == 100.0

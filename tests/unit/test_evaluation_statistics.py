@@ -150,7 +150,7 @@ def test_summary_schema_roundtrip_and_rejection(tmp_path):
     err = pose_errors(np.zeros((5, 3)), np.tile([0, 0, 0, 1.0], (5, 1)), np.ones((5, 3)), np.tile([0, 0, 0, 1.0], (5, 1)))
     doc = make_summary("seq", 5, {"C4N2": variant_summary(err)})
     save_summary(tmp_path / "s.json", doc)
-    assert load_summary(tmp_path / "s.json") == json.loads((tmp_path / "s.json").read_text())
+    assert load_summary(tmp_path / "s.json") == json.loads((tmp_path / "s.json").read_text()) == doc
     assert set(doc["variants"]["C4N2"]["translation_m"]) == set(STAT_KEYS)
     bad = json.loads(json.dumps(doc))
     del bad["variants"]["C4N2"]["rotation_deg"]["sd"]
@@ -196,6 +196,21 @@ def test_median_errors_by_depth_hand_made():
     assert rows["0-8 m"].split("- (0)")[0].strip() == "0.20 | 2.00 (3)"
     assert "1.00 | 5.00 (1)" in rows["8-60 m"] and "4.00 | 9.00 (1)" in rows["60+ m"]
     assert "0.30 | 3.00 (5)" in rows["all"] and rows["all"].rstrip().endswith("- (0)")
+
+
+def test_undefined_statistics_are_null_in_the_file_and_nan_when_read_back(tmp_path):
+    """The file was written with bare NaN tokens, which JSON.parse, jq and strict parsers refuse."""
+    one = pose_errors(np.zeros((1, 3)), np.tile([0, 0, 0, 1.0], (1, 1)), np.ones((1, 3)), np.tile([0, 0, 0, 1.0], (1, 1)))
+    lost = pose_errors(np.zeros((1, 3)), np.tile([0, 0, 0, 1.0], (1, 1)), np.full((1, 3), np.nan), np.full((1, 4), np.nan))
+    doc = make_summary("seq", 1, {"one": variant_summary(one), "lost": variant_summary(lost)})
+    save_summary(tmp_path / "s.json", doc)
+    strict = json.loads((tmp_path / "s.json").read_text(), parse_constant=lambda c: pytest.fail(f"non-JSON {c}"))
+    assert strict["variants"]["one"]["translation_m"]["sd"] is None
+    assert strict["variants"]["one"]["translation_m"]["median"] == pytest.approx(np.sqrt(3))
+    assert all(x is None for x in strict["variants"]["lost"]["rotation_deg"].values())
+    back = load_summary(tmp_path / "s.json")
+    assert np.isnan(back["variants"]["one"]["translation_m"]["sd"]) and np.isnan(back["variants"]["lost"]["translation_m"]["mae"])
+    assert back["variants"]["lost"]["lost_frames_pct"] == 100.0
 
 
 def test_one_value_has_no_sample_standard_deviation():

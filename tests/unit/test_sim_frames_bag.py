@@ -283,10 +283,13 @@ def test_pose_csv_rows_are_checked(tmp_path):
     header = "stamp_ns,x,y,z,qx,qy,qz,qw\n"
     for body, match in (("1,0,0,0,0,0,0\n", "line 2 has fewer than the 8 columns"),
                         ("1,0,0,0,0,0,0,1\n2,abc,0,0,0,0,0,1\n", "line 3: could not convert string to float: 'abc'"),
-                        ("", "no poses")):
-        (tmp_path / "poses.csv").write_text(header + body)
+                        ("", "needs a header")):
+        (tmp_path / "poses.csv").write_text(body if match == "needs a header" else header + body)
         with pytest.raises(ValueError, match=match):
             read_poses(tmp_path / "poses.csv")
+    (tmp_path / "poses.csv").write_text(header)  # no pose: the estimates of a run that lost every frame
+    none = read_poses(tmp_path / "poses.csv")
+    assert none.stamps_ns.shape == (0,) and none.trans.shape == (0, 3) and none.quat.shape == (0, 4)
 
 
 def test_an_interrupted_simulation_leaves_nothing_to_reuse(tmp_path, monkeypatch):

@@ -120,18 +120,18 @@ def overlay_strip(bag: Path, estimates, path: Path, count: int) -> Path:
     truth = read_poses(bag)
     estimate_at = {int(s): (t, q) for s, t, q in zip(estimates.stamps_ns, estimates.trans, estimates.quat)}
     chosen = set(np.linspace(0, len(truth.stamps_ns) - 1, max(count, 1)).round().astype(int).tolist())
-    renderer = Renderer(camera, fixed_wing_mesh("high"))
-    tiles = []
-    for k, (stamp, raw) in enumerate(iter_frames(bag)):
-        if k not in chosen:
-            continue
-        frame = cv2.remap(raw, maps[0], maps[1], cv2.INTER_LINEAR)
-        i = int(np.searchsorted(truth.stamps_ns, stamp))
-        true_pose = (truth.trans[i], truth.quat[i])
-        _outline(frame, renderer, true_pose, TRUTH_COLOUR)
-        if int(stamp) in estimate_at:
-            _outline(frame, renderer, estimate_at[int(stamp)], ESTIMATE_COLOUR)
-        tiles.append(_crop_about(frame, camera, true_pose[0], f"frame {k}, {true_pose[0][2]:.0f} m"))
+    with Renderer(camera, fixed_wing_mesh("high")) as renderer:
+        tiles = []
+        for k, (stamp, raw) in enumerate(iter_frames(bag)):
+            if k not in chosen:
+                continue
+            frame = cv2.remap(raw, maps[0], maps[1], cv2.INTER_LINEAR)
+            i = int(np.searchsorted(truth.stamps_ns, stamp))
+            true_pose = (truth.trans[i], truth.quat[i])
+            _outline(frame, renderer, true_pose, TRUTH_COLOUR)
+            if int(stamp) in estimate_at:
+                _outline(frame, renderer, estimate_at[int(stamp)], ESTIMATE_COLOUR)
+            tiles.append(_crop_about(frame, camera, true_pose[0], f"frame {k}, {true_pose[0][2]:.0f} m"))
     path.parent.mkdir(parents=True, exist_ok=True)
     if not cv2.imwrite(str(path), cv2.cvtColor(np.hstack(tiles), cv2.COLOR_RGB2BGR)):
         raise OSError(f"cannot write {path}")

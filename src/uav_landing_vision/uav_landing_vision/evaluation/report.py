@@ -7,7 +7,9 @@ JSON summary schema (every evaluation command writes it)::
                            "rotation_deg": {same keys},
                            "lost_frames_pct": float, "ms_per_frame": float or null}}}
 
-``translation_m`` is the Euclidean error, ``rotation_deg`` the geodesic error (3.3).
+``translation_m`` is the Euclidean error, ``rotation_deg`` the geodesic error (3.3). A statistic
+that is undefined (the SD of one frame; all of them for a variant without any estimate) is NaN
+in memory and ``null`` in the file, which strict JSON readers take.
 """
 
 import csv
@@ -156,15 +158,30 @@ def validate_summary(doc) -> None:
 
 
 def save_summary(path, doc: dict) -> None:
-    """Write the validated summary as JSON (a variant with no estimate at all has NaN statistics)."""
+    """Write the validated summary as strict JSON, an undefined statistic as ``null``."""
     validate_summary(doc)
-    Path(path).write_text(json.dumps(doc, indent=2, allow_nan=True) + "\n")
+    Path(path).write_text(json.dumps(_map_statistics(doc, lambda x: x if np.isfinite(x) else None),
+                                     indent=2, allow_nan=False) + "\n")
 
 
 def load_summary(path) -> dict:
+    """The summary written by :func:`save_summary` (``null`` statistics read back as NaN), validated."""
     doc = json.loads(Path(path).read_text())
+    if isinstance(doc, dict) and isinstance(doc.get("variants"), dict):
+        doc = _map_statistics(doc, lambda x: float("nan") if x is None else x)
     validate_summary(doc)
     return doc
+
+
+def _map_statistics(doc: dict, f) -> dict:
+    """``doc`` with ``f`` applied to each statistic of each variant's translation and rotation."""
+    variants = {}
+    for name, v in doc["variants"].items():
+        if isinstance(v, dict):
+            v = {k: {stat: f(x) for stat, x in part.items()} if k in ("translation_m", "rotation_deg")
+                 and isinstance(part, dict) else part for k, part in v.items()}
+        variants[name] = v
+    return {**doc, "variants": variants}
 
 
 def write_report(out_dir, sequence: str, errors_by_variant: dict[str, dict[str, np.ndarray]], appendix: str = "") -> str:

@@ -18,7 +18,8 @@ evaluation command, ``ms_per_frame`` null) and ``estimates.csv`` (the poses, for
 covariance's 95 % region, by true depth (``evaluation.consistency``; poses whose covariance is
 not positive definite, e.g. all zeros, are left out of that count). Without any ground truth
 nothing is written (logged); with fewer than ``frames`` ground-truth frames (a run stopped
-early), the report says so in its last line and the log warns. Non-finite poses, non-unit
+early), the report says so near its end (INCOMPLETE) and the log warns, as it does for poses
+that never met their ground truth (UNSCORED, the report's last line). Non-finite poses, non-unit
 quaternions and repeated stamps are logged, counted and dropped.
 """
 
@@ -151,8 +152,9 @@ class EvaluatorNode(LandingNode):
             self.get_logger().warn(short)
             appendix = f"{appendix}\n\n{short}"
         if self._without_truth:  # a replay's truth precedes its pose: these truths were lost or never recorded
-            stamps = list(self._without_truth)
-            unscored = (f"UNSCORED: {len(stamps)} poses without ground truth, stamped (ns) "
+            stamps, forgotten = list(self._without_truth), self.counters["poses_without_truth_dropped"]
+            unscored = (f"UNSCORED: {len(stamps) + forgotten} poses without ground truth"
+                        f"{f' (the oldest {forgotten} forgotten)' if forgotten else ''}, stamped (ns) "
                         f"{', '.join(map(str, stamps[:5]))}{' ...' if len(stamps) > 5 else ''}")
             self.get_logger().warn(unscored)
             appendix = f"{appendix}\n\n{unscored}"

@@ -246,7 +246,8 @@ def read_poses(path, topic: str = "") -> Poses:
 
 
 def read_pose_csv(path) -> Poses:
-    """Poses from a CSV with the columns ``stamp_ns,x,y,z,qx,qy,qz,qw`` (extra columns ignored)."""
+    """Poses from a CSV with the columns ``stamp_ns,x,y,z,qx,qy,qz,qw`` (extra columns ignored);
+    none for a header alone (the estimates of a run that posed no frame)."""
     with Path(path).open(newline="") as f:
         reader = csv.DictReader(f)
         missing = [c for c in CSV_HEADER if c not in (reader.fieldnames or [])]
@@ -260,9 +261,7 @@ def read_pose_csv(path) -> Poses:
                 rows.append((int(row["stamp_ns"]), *(float(row[c]) for c in CSV_HEADER[1:])))
             except ValueError as exc:
                 raise ValueError(f"{path}: line {reader.line_num}: {exc}") from None
-    if not rows:
-        raise ValueError(f"{path}: no poses (needs at least one row)")
-    values = np.array([r[1:] for r in rows], float)
+    values = np.array([r[1:] for r in rows], float).reshape(-1, 7)
     return Poses(np.array([r[0] for r in rows], np.int64), values[:, :3], values[:, 3:])
 
 
