@@ -3,7 +3,8 @@
 An objective is ``score(ParticleSet) -> (M,)`` non-negative likelihoods, higher is better,
 evaluated for the whole batch in one call (one batched render). Every optimiser calls it
 once per iteration (GAbF may end before the last one) and returns a set whose weights are the
-scores of its poses.
+scores of its poses; the particles GAbF leaves as they came (beyond its ``B`` best, or a set of
+one) keep the weights they came with, scores when the caller's are (as the tracker's).
 Only poses change; velocities and per-particle filter state stay with their particle.
 
 Rotations stay on the unit sphere: a pose increment is a body-frame rotation vector ``r``
