@@ -226,8 +226,8 @@ def summary(result: EvaluationResult) -> dict:
 
 
 def format_results(result: EvaluationResult) -> str:
-    """Thesis-format tables (as Tables 6.12–6.22: Euclidean translation in m, geodesic rotation
-    in deg, one column per variant), then (ours) the median errors by true depth, lost frames and
+    """Thesis-format tables (the statistics of Tables 6.12–6.22, laid out as 6.12–6.19: Euclidean
+    translation in m, geodesic rotation in deg, one column per variant), then (ours) the median errors by true depth, lost frames and
     ms per frame by stage, and how many errors lie inside the published covariance's 95 % region,
     by true depth."""
     from ..evaluation import format_errors_by_depth, format_table, statistics_table
