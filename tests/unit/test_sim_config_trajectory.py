@@ -5,9 +5,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from uav_landing_vision.camera import CameraModel, save_camera_info_yaml
 from uav_landing_vision.geometry import matrix_to_euler_zyx, quat_to_matrix
 from uav_landing_vision.sim import ScenarioError, generators, load_scenario, make_trajectory
 from uav_landing_vision.sim.config import ApproachConfig, ImagingConfig, ShipConfig, validate
+from uav_landing_vision.sim.simulate import scenario_camera
 from uav_landing_vision.sim.trajectory import SmoothSignal, camera_mount
 
 SHIPPED = ("normal", "complex", "video", "single_frame")
@@ -83,6 +85,19 @@ def test_a_scenario_that_is_not_text_is_a_clear_error(tmp_path):
     path.write_bytes("approach: {}  # caméra\n".encode("latin-1"))
     with pytest.raises(ScenarioError, match="cannot read scenario"):
         load_scenario(path)
+
+
+def test_a_scenarios_files_are_found_beside_it_or_in_config_not_in_the_working_directory(tmp_path, monkeypatch):
+    """A ./camera.yaml (a user's own calibration, say) replaced the shipped scenarios' camera unnoticed."""
+    other = CameraModel(640, 480, [[800.0, 0, 320.0], [0, 800.0, 240.0], [0, 0, 1]])
+    save_camera_info_yaml(other, tmp_path / "camera.yaml")
+    monkeypatch.chdir(tmp_path)
+    assert scenario_camera(load_scenario("normal")).K[0, 0] == 1100.0
+    (tmp_path / "mine").mkdir()
+    save_camera_info_yaml(other, tmp_path / "mine" / "lens.yaml")
+    (tmp_path / "mine" / "landing.yaml").write_text("camera_info: lens.yaml\napproach: {}\n")
+    monkeypatch.chdir(tmp_path / "mine" / "..")
+    assert scenario_camera(load_scenario(tmp_path / "mine" / "landing.yaml")).K[0, 0] == 800.0
 
 
 def test_unknown_scenario_name():

@@ -5,7 +5,7 @@ Every key has a default; an unknown key, a wrong type or an out-of-range value i
 """
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import yaml
@@ -103,7 +103,7 @@ class Scenario:
     seed: int = 0
     dt_s: float = 0.034
     start_time_s: float = 1_700_000_000.0  # header stamp of the first frame
-    camera_info: str = "camera.yaml"  # a config/ file name or a path
+    camera_info: str = "camera.yaml"  # a path (a relative one from the scenario file's folder) or a config/ file name
     approach: ApproachConfig | None = None
     single_frame: SingleFrameConfig | None = None
     ship: ShipConfig = field(default_factory=ShipConfig)
@@ -137,7 +137,27 @@ def load_scenario(name_or_path) -> Scenario:
         scenario = from_mapping(Scenario, doc, str(path))
     except ConfigError as exc:
         raise ScenarioError(str(exc)) from exc
-    return validate(scenario, str(path))
+    return validate(_with_files_found(scenario, path.parent), str(path))
+
+
+def _with_files_found(s: Scenario, folder: Path) -> Scenario:
+    """``s`` with a relative ``camera_info`` or video path taken from the scenario's ``folder`` where
+    the file is there, and else a ``camera_info`` name from ``config/``: read from the working
+    directory first, a ./camera.yaml replaced the shipped scenarios' calibration unnoticed."""
+    def found(name: str, shipped: bool) -> str:
+        if not name or Path(name).is_absolute():
+            return name
+        if (folder / name).exists():
+            return str((folder / name).resolve())
+        if shipped:
+            try:
+                return str(config_path(name))
+            except FileNotFoundError:
+                pass
+        return name
+
+    background = replace(s.background, video=found(s.background.video, shipped=False))
+    return replace(s, camera_info=found(s.camera_info, shipped=True), background=background)
 
 
 def validate(s: Scenario, where: str = "scenario") -> Scenario:
