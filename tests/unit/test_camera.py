@@ -258,6 +258,24 @@ def test_a_matrix_that_is_not_intrinsic_is_refused(k):
         CameraModel(640, 480, k)
 
 
+@pytest.mark.parametrize("k, message", [
+    ([[1e-300, 0, 320], [0, 1e-300, 240], [0, 0, 1]], "field of view"),
+    ([[1e300, 0, 320], [0, 1e300, 240], [0, 0, 1]], "field of view"),
+    ([[800, 0, 320], [0, 8e-4, 240], [0, 0, 1]], "field of view"),
+    ([[800, 0, -1e9], [0, 800, 1e9], [0, 0, 1]], r"principal point \(-1e\+09, 1e\+09\) lies outside the 640x480 image"),
+    ([[800, 0, 641], [0, 800, 240], [0, 0, 1]], "principal point"),
+])
+def test_a_matrix_no_lens_has_is_refused(k, message):
+    """Such a camera_info was taken: every particle drawn off the image, the tracker 'ready' and never tracking."""
+    with pytest.raises(ValueError, match=message):
+        CameraModel(640, 480, k)
+
+
+def test_the_extreme_lenses_still_taken():
+    CameraModel(640, 480, [[640 / np.pi, 0, 0], [0, 480 / np.pi, 480], [0, 0, 1]], [], distortion_model="equidistant")  # 180°
+    CameraModel(640, 480, [[1e6, 0, 320], [0, 1e6, 240], [0, 0, 1]])  # 0.04°: a long telephoto
+
+
 def test_each_distortion_model_takes_its_own_coefficient_count():
     """plumb_bob 0, 4 or 5; rational_polynomial 0 or 8; equidistant 0 or 4: a D of another length
     was calibrated for another model (ROS's camera_info, cv2.calibrateCamera's rational flag)."""

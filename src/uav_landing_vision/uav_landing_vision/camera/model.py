@@ -19,6 +19,7 @@ import cv2
 import numpy as np
 
 DEFAULT_FRAME_ID = "camera_optical_frame"
+MIN_FOV_DEG, MAX_FOV_DEG = 0.01, 179.0  # per axis, 2 atan(side / 2f): beyond them K is not a lens's
 MAX_IMAGE_SIDE = 16384  # px; larger than any deck camera, and GL's usual renderbuffer limit
 # Coefficient counts of each distortion model; plumb_bob also takes none or 4 (k3 = 0).
 DISTORTION_MODELS = {"plumb_bob": 5, "rational_polynomial": 8, "equidistant": 4}
@@ -50,6 +51,12 @@ class CameraModel:
             raise ValueError(f"camera matrix K is not an intrinsic matrix [[fx,s,cx],[0,fy,cy],[0,0,1]]: {K.tolist()}")
         if K[0, 1] != 0:  # OpenCV's undistortion (points and remap tables) ignores it
             raise ValueError(f"camera matrix K has skew {K[0, 1]}; only zero skew is supported (as in plumb_bob)")
+        if not (0 <= K[0, 2] <= self.width and 0 <= K[1, 2] <= self.height):
+            raise ValueError(f"principal point ({K[0, 2]:g}, {K[1, 2]:g}) lies outside the {self.width}x{self.height} image")
+        fov = np.degrees(2 * np.arctan2([self.width / 2, self.height / 2], [K[0, 0], K[1, 1]]))
+        if not np.all((MIN_FOV_DEG <= fov) & (fov <= MAX_FOV_DEG)):
+            raise ValueError(f"focal lengths fx = {K[0, 0]:g}, fy = {K[1, 1]:g} px give a {fov[0]:.3g}° x {fov[1]:.3g}° "
+                             f"field of view (read as a pinhole's), outside {MIN_FOV_DEG}..{MAX_FOV_DEG}°")
         model = self.distortion_model
         if model not in DISTORTION_MODELS:
             raise ValueError(f"distortion model {model!r} is not one of {sorted(DISTORTION_MODELS)}")
