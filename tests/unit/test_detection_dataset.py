@@ -200,6 +200,25 @@ def test_an_unfinished_dataset_is_continued_only_with_its_own_settings(tmp_path)
     with pytest.raises(FileNotFoundError, match="nosuch.yaml"):  # before anything is written
         generate(replace(cfg, camera_info="nosuch.yaml"), tmp_path / "other", progress=False)
     assert not (tmp_path / "other").exists()
+    # No user images: refused before settings.json is written (a corrected retry into the same
+    # folder was refused as "other settings"), and by name with workers (a broken process pool).
+    (tmp_path / "empty").mkdir()
+    for workers in (1, 2):
+        with pytest.raises(ValueError, match="no images"):
+            generate(replace(cfg, families=("images",), image_dir=str(tmp_path / "empty")), tmp_path / "imgs",
+                     progress=False, workers=workers)
+        assert not (tmp_path / "imgs").exists()
+
+
+def test_an_image_that_cannot_be_written_stops_the_run(tmp_path, monkeypatch):
+    """cv2.imwrite returns False instead of raising: the label was written, the image missing."""
+    camera = CameraModel(192, 108, np.array([[165.0, 0, 96.0], [0, 165.0, 54.0], [0, 0, 1]]))
+    save_camera_info_yaml(camera, tmp_path / "cam.yaml")
+    cfg = DatasetConfig(count=1, seed=7, camera_info=str(tmp_path / "cam.yaml"), families=("normal",), banks_per_family=1)
+    monkeypatch.setattr(cv2, "imwrite", lambda *args: False)
+    with pytest.raises(OSError, match=r"cannot write .*000000.jpg"):
+        generate(cfg, tmp_path / "data", progress=False)
+    assert not (tmp_path / "data" / "labels" / "000000.txt").exists()
 
 
 def test_approach_attitudes_point_the_nose_at_the_camera():

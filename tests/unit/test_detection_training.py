@@ -227,6 +227,45 @@ def test_training_uses_every_folder_and_resumes_only_with_its_own_settings(tmp_p
                if "running" not in k and "num_batches" not in k)  # BatchNorm statistics move
     with pytest.raises(FileNotFoundError, match="to start from"):
         train(TrainConfig(**{**tuned.__dict__, "init": str(tmp_path / "none.pt")}), progress=False)
+    # Not a checkpoint, or one of another width: named errors, not a pickle or torch traceback.
+    with pytest.raises(ValueError, match=r"dataset.json is not a training checkpoint"):
+        train(TrainConfig(**{**tuned.__dict__, "init": str(tmp_path / "data1" / "dataset.json")}), progress=False)
+    with pytest.raises(ValueError, match=r"last.pt does not fit a network of width 16"):
+        train(TrainConfig(**{**tuned.__dict__, "width": 16}), progress=False)
+    assert load_checkpoint(tuned)["frozen_normalisation"] is False
+
+
+def test_a_checkpoint_of_a_run_from_an_exported_model_keeps_its_normalisation_frozen(tmp_path):
+    """Its BatchNorm layers hold the export's folded identity: trained from its last.pt with them
+    in training mode, the network no longer computed what it was (loss 0.56 became 16.9)."""
+    from uav_landing_vision.detection.train import TrainConfig, folded_normalisation
+
+    def run_from(init: str, **state) -> TrainConfig:
+        torch.save({"net": {}, "config": {"init": init}, **state}, tmp_path / "last.pt")
+        return TrainConfig(init=str(tmp_path / "last.pt"))
+
+    assert folded_normalisation(TrainConfig(init="model.onnx"))
+    assert folded_normalisation(run_from("model.onnx"))  # a checkpoint written before the flag
+    assert folded_normalisation(run_from("earlier/last.pt", frozen_normalisation=True))
+    assert not folded_normalisation(run_from("", frozen_normalisation=False))
+    assert not folded_normalisation(TrainConfig())
+
+
+def test_folders_whose_frames_letterbox_to_different_sizes_are_refused(tmp_path):
+    """Batched together they crashed in torch.stack; refused before any image is read."""
+    import json
+
+    from uav_landing_vision.detection.train import TrainConfig, train
+
+    for name, (w, h) in (("wide", (1280, 720)), ("tall", (1280, 960)), ("same", (1920, 1080))):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "dataset.json").write_text(json.dumps({"width": w, "height": h, "images": 2}))
+    cfg = TrainConfig(data=(str(tmp_path / "wide"), str(tmp_path / "tall")), out=str(tmp_path / "run"),
+                      input_size=(640, 384), width=8)
+    with pytest.raises(ValueError, match=r"tall \(1280x960\) and of .*wide letterbox to different sizes at 640x384"):
+        train(cfg, progress=False)
+    with pytest.raises(FileNotFoundError, match="cannot read image"):  # one shape: it goes on to read the images
+        train(TrainConfig(**{**cfg.__dict__, "data": (str(tmp_path / "wide"), str(tmp_path / "same"))}), progress=False)
 
 
 def test_fine_tuning_starts_from_an_exported_model(tmp_path):
@@ -271,6 +310,7 @@ def test_fine_tuning_starts_from_an_exported_model(tmp_path):
     ({"lr": float("inf")}, "lr"),
     ({"weight_decay": -1.0}, "weight_decay"),
     ({"max_images": -3}, "max_images"),
+    ({"input_size": (4128, 192)}, "at most 4096"),  # it trained, then failed in the export
 ])
 def test_training_settings_that_cannot_train_are_refused(kwargs, message):
     """An empty input (it trained, then failed in the export with a traceback), a crop with one

@@ -463,8 +463,10 @@ def _write_images(out: Path, indices) -> list[float | None]:
             widths.append(float(boxes[0, 2] - boxes[0, 0]) if len(boxes) else None)
             continue
         image, box = gen.sample(i)
-        cv2.imwrite(str(out / "images" / f"{i:06d}.jpg"), cv2.cvtColor(image, cv2.COLOR_RGB2BGR),
-                    [cv2.IMWRITE_JPEG_QUALITY, gen.cfg.jpeg_quality])
+        path = out / "images" / f"{i:06d}.jpg"
+        if not cv2.imwrite(str(path), cv2.cvtColor(image, cv2.COLOR_RGB2BGR),
+                           [cv2.IMWRITE_JPEG_QUALITY, gen.cfg.jpeg_quality]):  # OpenCV returns False, not raises
+            raise OSError(f"cannot write {path} (disk full or not writable?)")
         label.with_suffix(".tmp").write_text("" if box is None else yolo_line(box, w, h) + "\n")
         label.with_suffix(".tmp").replace(label)
         widths.append(None if box is None else float(box[2] - box[0]))
@@ -509,7 +511,8 @@ def generate(cfg: DatasetConfig, out_dir, progress: bool = True, workers: int = 
     if (out / "dataset.json").exists():
         raise FileExistsError(f"{out} already holds a dataset; choose a new folder")
     camera = dataset_camera(cfg)
-    _record_settings(cfg, out)
+    _start_worker(cfg)  # here first: bad images, video or seed are refused before anything is written,
+    _record_settings(cfg, out)  # and by name (in a worker they broke the pool)
     (out / "images").mkdir(exist_ok=True)
     (out / "labels").mkdir(exist_ok=True)
     chunks = [range(a, min(a + 25, cfg.count)) for a in range(0, cfg.count, 25)]
@@ -519,8 +522,6 @@ def generate(cfg: DatasetConfig, out_dir, progress: bool = True, workers: int = 
     if workers > 1:
         pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
                                    initializer=_start_worker, initargs=(cfg,))
-    else:
-        _start_worker(cfg)
     try:
         for chunk_widths in (pool.map if pool else map)(_write_images, [out] * len(chunks), chunks):
             widths += chunk_widths

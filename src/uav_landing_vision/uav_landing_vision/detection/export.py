@@ -1,6 +1,6 @@
 """ONNX export of the detector and box verifier networks (torch; development only).
 
-The graph has one input ``images`` (N,3,H,W) float32 RGB in [0,1] with dynamic H and W
+The graph has one input ``images`` (1,3,H,W) float32 RGB in [0,1] with dynamic H and W
 (multiples of 32) and one output per stride (``p8``, ``p16``, ``p32``). Metadata props carry
 what the runtime needs: ``strides``, ``input_width``, ``input_height`` (the full-frame
 letterbox size) and a free-form ``description``. The exporter's debug records (per-node stack
@@ -20,6 +20,7 @@ from .network import STRIDES
 from .verifier import CropGeometry
 
 OPSET = 18
+MAX_EXPORT_SIDE = 4096  # px; the export's dynamic H and W are declared up to it (multiples of 32)
 
 
 def export_onnx(net: torch.nn.Module, path, input_size: tuple[int, int], description: str = "") -> Path:
@@ -29,7 +30,8 @@ def export_onnx(net: torch.nn.Module, path, input_size: tuple[int, int], descrip
     path.parent.mkdir(parents=True, exist_ok=True)
     net = net.eval()
     example = torch.zeros(1, 3, height, width)
-    h, w = torch.export.Dim("h32", min=1, max=64), torch.export.Dim("w32", min=1, max=64)
+    cells = MAX_EXPORT_SIDE // 32
+    h, w = torch.export.Dim("h32", min=1, max=cells), torch.export.Dim("w32", min=1, max=cells)
     torch.onnx.export(
         net, (example,), str(path), dynamo=True, opset_version=OPSET, external_data=False,
         input_names=["images"], output_names=[f"p{s}" for s in STRIDES],

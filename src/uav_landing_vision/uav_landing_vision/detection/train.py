@@ -21,6 +21,7 @@ from torch.nn import functional as F
 from .dataset import read_labels
 from .detector import decode, letterbox, nms
 from .evaluation import average_precision, match_frame
+from .export import MAX_EXPORT_SIDE
 from .network import STRIDES, UavDetectorNet, decode_torch
 
 LEVEL_LIMITS = (48.0, 144.0)  # larger box side (input px) separating the stride 8/16/32 heads
@@ -64,6 +65,8 @@ class TrainConfig:
                              f"and {self.crop}")
         if any(s % max(STRIDES) for s in self.input_size + self.crop):
             raise ValueError(f"input_size and crop must be multiples of {max(STRIDES)}")
+        if max(self.input_size) > MAX_EXPORT_SIDE:
+            raise ValueError(f"input_size sides must be at most {MAX_EXPORT_SIDE} (the ONNX export's), got {self.input_size}")
         if not self.data:
             raise ValueError("no dataset folder given")
 
@@ -205,12 +208,20 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
     out.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(cfg.threads)
-    val_items, train_items = [], []
+    val_items, train_items, shapes = [], [], {}
     for root in cfg.data:
         meta_path = Path(root) / "dataset.json"
         if not meta_path.is_file():
             raise FileNotFoundError(f"{root} is not a dataset made by make-detection-data (no dataset.json)")
-        images = json.loads(meta_path.read_text())["images"]
+        meta = json.loads(meta_path.read_text())
+        shape = letterbox(np.zeros((meta["height"], meta["width"], 3), np.uint8), cfg.input_size,
+                          max_scale=min(cfg.input_size[0] / meta["width"], cfg.input_size[1] / meta["height"]))[0].shape
+        shapes.setdefault(shape[:2], root)
+        if len(shapes) > 1:
+            raise ValueError(f"the frames of {root} ({meta['width']}x{meta['height']}) and of {shapes[next(iter(shapes))]} "
+                             f"letterbox to different sizes at {cfg.input_size[0]}x{cfg.input_size[1]}: "
+                             "train on folders of one frame shape")
+        images = meta["images"]
         count = images if cfg.max_images <= 0 else min(cfg.max_images, images)
         val_items += [(root, i) for i in range(count) if i % VAL_EVERY == 0]
         train_items += [(root, i) for i in range(count) if i % VAL_EVERY != 0]
@@ -224,7 +235,10 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
 
     net = UavDetectorNet(cfg.width)
     if cfg.init and not resume:
-        net.load_state_dict(initial_weights(cfg.init, net))
+        try:
+            net.load_state_dict(initial_weights(cfg.init, net))
+        except RuntimeError as exc:  # torch's size mismatches
+            raise ValueError(f"{cfg.init} does not fit a network of width {cfg.width}: {exc}") from exc
     optim = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     total = cfg.epochs * len(train_loader)
     warm = max(1, total // 20)
@@ -260,7 +274,8 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
                               "box": totals[2] / max(n, 1), "val_ap50": ap50, "seconds": seconds,
                               "images_per_s": len(train_set) / seconds})
         print(json.dumps(log["epochs"][-1]))
-        torch.save({"config": asdict(cfg), "epoch": epoch, "net": net.state_dict(), "optim": optim.state_dict(),
+        torch.save({"config": asdict(cfg), "epoch": epoch, "net": net.state_dict(), "frozen_normalisation": frozen,
+                    "optim": optim.state_dict(),
                     "sched": sched.state_dict(), "shuffle_rng": shuffle.get_state(),
                     "torch_rng": torch.get_rng_state(), "log": log}, out / "last.tmp")
         (out / "last.tmp").replace(ckpt)
@@ -269,8 +284,15 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
 
 
 def folded_normalisation(cfg: TrainConfig) -> bool:
-    """Whether the run starts from an exported model: its batch normalisation then stays frozen."""
-    return Path(cfg.init).suffix == ".onnx"
+    """Whether the run's batch normalisation stays frozen: it starts from an exported model, or
+    from the checkpoint of a run that did (whose BatchNorm layers still hold the folded identity;
+    set training, they normalised by batch statistics and the starting network was lost)."""
+    if not cfg.init:
+        return False
+    if Path(cfg.init).suffix == ".onnx":
+        return True
+    state = _checkpoint(Path(cfg.init))
+    return bool(state.get("frozen_normalisation", Path(state["config"].get("init", "")).suffix == ".onnx"))
 
 
 def set_training(net: UavDetectorNet, frozen_normalisation: bool) -> None:
@@ -290,7 +312,18 @@ def initial_weights(path, net: UavDetectorNet) -> dict:
         raise FileNotFoundError(f"no checkpoint {path} to start from")
     if path.suffix == ".onnx":
         return weights_from_onnx(path, net)
-    return torch.load(path, weights_only=False)["net"]
+    return _checkpoint(path)["net"]
+
+
+def _checkpoint(path: Path) -> dict:
+    """A training checkpoint (``last.pt``); ValueError naming the file for anything else."""
+    try:
+        state = torch.load(path, weights_only=False)
+    except Exception as exc:  # pickle, zip and torch errors of a file that is no checkpoint
+        raise ValueError(f"{path} is not a training checkpoint: {exc}") from exc
+    if not (isinstance(state, dict) and "net" in state and "config" in state):
+        raise ValueError(f"{path} is not a training checkpoint (no network and settings in it)")
+    return state
 
 
 def weights_from_onnx(path, net: UavDetectorNet) -> dict:
