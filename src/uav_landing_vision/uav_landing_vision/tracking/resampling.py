@@ -244,6 +244,14 @@ def fixed_size(result: Resampled, weights, rng: np.random.Generator, size: int) 
     App. B does not say how the thesis kept ``M`` fixed under branch-kill, optimal and
     reallocation; here surplus copies are dropped uniformly at random and a shortfall is
     filled by systematic draws on ``weights``. The result is sorted.
+
+    The copies' carried weights are not used, so two schemes are not unbiased in counts here:
+    reallocation's shortfall (the fractions ``M w − ⌊M w⌋`` its heavy particles lose) is drawn
+    from all the weights, so a particle of ``M w = 1.78`` gets 1.35 copies in expectation and
+    light ones more than ``M w``; optimal resampling back to ``M`` keeps every particle of
+    positive weight once, i.e. it does not resample (it reduces a set only when asked for fewer).
+    Drawing the copies by their carried weight instead (unbiased) was measured in the tracker
+    and not adopted (docs/tracking.md, "Reallocation's copy counts").
     """
     idx = result.indices
     if len(idx) > size:
