@@ -232,6 +232,34 @@ def test_a_replay_waits_for_the_links_its_bag_can_bring_up(tmp_path):
         assert graph_module.replay_ready_topics(deck_cam, remaps) == untrue_links
 
 
+def test_the_launch_files_python_without_rosbags_still_reads_a_bag_folders_topics(tmp_path, monkeypatch, capsys):
+    """`ros2 launch` runs in the system's Python; with the package's requirements in a virtual
+    environment, reading the bag raised ModuleNotFoundError and the replay launch died."""
+    packed_frames = write_bag(tmp_path / "packed_frames", _compressed(frame_entries(SMALL_CAMERA, 1)))
+    expected = (graph_module.replay_ready_topics(packed_frames), graph_module.frame_overrides(packed_frames))
+    for name in [m for m in sys.modules if m == "rosbags" or m.startswith(("rosbags.", "uav_landing_vision.sim"))]:
+        monkeypatch.delitem(sys.modules, name)
+    monkeypatch.setitem(sys.modules, "rosbags", None)  # import rosbags now raises ImportError
+    assert (graph_module.replay_ready_topics(packed_frames), graph_module.frame_overrides(packed_frames)) == expected
+    single = next(packed_frames.glob("*.mcap"))  # a bare file has no metadata.yaml: the raw-frame defaults, said
+    assert graph_module.replay_ready_topics(single) == graph_module.PIPELINE_TOPICS
+    assert "cannot read the topics of" in capsys.readouterr().err
+
+
+def test_a_string_parameter_outside_the_basic_plane_reaches_rcl_as_written(tmp_path, ros_domain_id):
+    """json.dumps's ASCII escapes (a surrogate pair for an emoji) made rcl refuse the override and
+    every node fail to start."""
+    value = str(tmp_path / "landing 😀 #1: deck")
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=ros_domain_id, args=["--ros-args", "-p", f"path:={graph_module.string_parameter(value)}"])
+    try:
+        node = rclpy.node.Node("quoted", context=context, automatically_declare_parameters_from_overrides=True)
+        assert node.get_parameter("path").value == value
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=context)
+
+
 def test_every_graph_node_has_a_module_and_a_parameter_file():
     for name in GRAPH_NODES:
         cmd = node_command(name, REPO / "config")

@@ -67,6 +67,25 @@ def test_graph_replaying_a_bag_through_the_whole_graph_waits_for_every_link(tmp_
     assert [v for k, v in own["bag_player"] if k == "ready_topics"] == ["[/camera/image_raw]"]  # the user's own only
 
 
+@pytest.mark.parametrize("nodes, drain, stop_timeout, message", [
+    ("undistort,undistort,evaluator", 2.0, 10.0, r"node\(s\) \['undistort'\] named more than once"),
+    (None, 2.0, float("nan"), "both finite"),  # Popen.wait(timeout=nan) never returned: the graph hung
+    (None, float("inf"), 10.0, "both finite"),
+])
+def test_graph_refuses_a_repeated_node_and_timeouts_that_are_not_finite(nodes, drain, stop_timeout, message):
+    """A repeated name started two processes, the second took the first's place in the graph's
+    table, and the first ran on after "all nodes stopped cleanly"."""
+    import argparse
+
+    from uav_landing_vision.graph import _plan
+    from uav_landing_vision.resources import config_path
+
+    args = argparse.Namespace(nodes=nodes, bag=None, param=[], drain=drain, stop_timeout=stop_timeout,
+                              config=config_path("tracker.yaml").parent)
+    with pytest.raises(ValueError, match=message):
+        _plan(args)
+
+
 def _bag_of(path, topics):
     """A bag that records ``topics`` (one message each; only their names matter here)."""
     from rosbags.rosbag2 import Writer

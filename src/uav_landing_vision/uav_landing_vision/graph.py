@@ -19,6 +19,7 @@ This module imports no ROS module: the nodes do, in their own processes.
 """
 
 import json
+import math
 import os
 import signal
 import subprocess
@@ -73,7 +74,7 @@ STACK_DUMP_S = 1.0  # a hung node's time to print its stacks (SIGUSR1) before SI
 def string_parameter(value) -> str:
     """``value`` as a string for a ``-p key:=value`` override, which rcl reads as YAML: quoted, so
     that a path with " #" is not cut at its comment or one with ": " refused."""
-    return json.dumps(str(value))
+    return json.dumps(str(value), ensure_ascii=False)  # rcl refuses the \\ud83d-style pairs of ASCII JSON
 
 
 def ready_topics_parameter(topics=PIPELINE_TOPICS) -> str:
@@ -85,12 +86,8 @@ def replay_ready_topics(bag, remaps=None) -> tuple[str, ...]:
     """:data:`PIPELINE_TOPICS` less the :data:`RECORDED_TOPICS` that ``bag`` lacks (all of them
     when it cannot be read: bag_player reports that at start-up), every name taken through the
     topic ``remaps`` ``{from: to}`` of the nodes."""
-    from .sim.bag import BagError
-
-    try:
-        return _ready_topics(_recorded_topics(bag), remaps)
-    except BagError:
-        return PIPELINE_TOPICS
+    recorded = _topics_if_readable(bag)
+    return PIPELINE_TOPICS if recorded is None else _ready_topics(recorded, remaps)
 
 
 def _ready_topics(recorded: set[str], remaps=None) -> tuple[str, ...]:
@@ -111,12 +108,38 @@ def _compressed_frames(played: set[str], remaps: dict) -> bool:
 def frame_overrides(bag, remaps=None) -> dict:
     """:func:`_frame_overrides` of ``bag``; empty for one that cannot be read (bag_player reports
     that at start-up)."""
-    from .sim.bag import BagError
+    recorded = _topics_if_readable(bag)
+    return {} if recorded is None else _frame_overrides(recorded, remaps)
+
+
+def _topics_if_readable(bag) -> set[str] | None:
+    """The topics of ``bag``, None if it cannot be read. The launch file runs in `ros2 launch`'s
+    Python, which may lack rosbags (the package's own may be a virtual environment): there a bag
+    folder's metadata.yaml is read instead, and for anything else the lack is said."""
+    try:
+        from .sim.bag import BagError
+    except ImportError as exc:
+        try:
+            return _listed_topics(Path(bag) / "metadata.yaml")
+        except (OSError, ValueError):
+            print(f"[uav_landing_vision] cannot read the topics of {bag} in this Python ({exc}): it is replayed "
+                  "as a bag of raw frames, camera_info and ground truth", file=sys.stderr, flush=True)
+            return None
+    try:
+        return _recorded_topics(bag)
+    except BagError:
+        return None
+
+
+def _listed_topics(metadata: Path) -> set[str]:
+    """The topics a rosbag2 ``metadata.yaml`` lists; OSError or ValueError if it cannot say."""
+    import yaml
 
     try:
-        return _frame_overrides(_recorded_topics(bag), remaps)
-    except BagError:
-        return {}
+        info = yaml.safe_load(metadata.read_text())["rosbag2_bagfile_information"]
+        return {entry["topic_metadata"]["name"] for entry in info["topics_with_message_count"]}
+    except (yaml.YAMLError, KeyError, TypeError) as exc:
+        raise ValueError(f"{metadata}: not a rosbag2 metadata file ({exc})") from exc
 
 
 def _frame_overrides(recorded: set[str], remaps=None) -> dict:
@@ -231,6 +254,9 @@ def _plan(args, remaps=None) -> tuple[list[str], dict]:
     unknown = [n for n in names if n not in GRAPH_NODES]
     if unknown:
         raise ValueError(f"unknown node(s) {unknown}; known: {list(GRAPH_NODES)}")
+    repeated = sorted({n for n in names if names.count(n) > 1})
+    if repeated:
+        raise ValueError(f"node(s) {repeated} named more than once in --nodes")
     if args.bag is None:
         names = [n for n in names if n != PLAYER]
     elif PLAYER not in names:
@@ -241,8 +267,8 @@ def _plan(args, remaps=None) -> tuple[list[str], dict]:
         recorded = _readable_bag_topics(args.bag)
     if not names:
         raise ValueError("no node to run")
-    if args.drain < 0 or args.stop_timeout <= 0:
-        raise ValueError("--drain must be >= 0 and --stop-timeout > 0")
+    if not (0 <= args.drain < math.inf and 0 < args.stop_timeout < math.inf):
+        raise ValueError("--drain must be >= 0 and --stop-timeout > 0, both finite")
     if args.bag is None:
         overrides = {n: [] for n in names}
     else:  # the whole graph waits for its links unless told which

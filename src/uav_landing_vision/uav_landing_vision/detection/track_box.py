@@ -22,7 +22,7 @@ from ..render.boxes import projected_roi
 
 @dataclass(frozen=True)
 class TrackBoxConfig:
-    enabled: bool = False
+    enabled: bool = True  # as config/detector.yaml: the detector node run without it behaves alike
     grow: float = 0.25  # each side moves out by this fraction of the box's width / height
     max_frames: int = 15  # consecutive frames on track boxes, then none until a detection
     max_age_s: float = 0.5  # a pose older than this (frame stamp − pose stamp) is not used
