@@ -12,7 +12,7 @@ from pathlib import Path
 
 import yaml
 
-from uav_landing_vision.graph import GRAPH_NODES, PIPELINE_TOPICS, PLAYER, _plan
+from uav_landing_vision.graph import GRAPH_NODES, PIPELINE_TOPICS, PLAYER, TRACKER_ACK, _plan
 
 PACKAGE_DIR = Path(__file__).parents[2] / "src" / "uav_landing_vision"
 LAUNCH = PACKAGE_DIR / "launch" / "landing_vision.launch.py"
@@ -186,5 +186,7 @@ def test_compose_replay_runs_every_node_but_the_player_on_the_bags_clock():
     option = "-p use_sim_time:=${USE_SIM_TIME:-false}"
     assert [n for n, s in services.items() if (option in s["command"]) != (n != PLAYER)] == []
     assert "clock" not in services[PLAYER]["command"]  # the player publishes /clock (bag_player.yaml)
+    # Paced as the graph and the launch file pace it: on the tracker's status (it paced on undistort's output).
+    assert all(f"-p {key}:={value}" in services[PLAYER]["command"] for key, value in TRACKER_ACK)
     replay = [line for line in (docker / "README.md").read_text().splitlines() if "--profile replay up" in line]
     assert replay and all("USE_SIM_TIME=true " in line for line in replay)
