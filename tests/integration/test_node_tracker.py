@@ -352,6 +352,7 @@ def test_a_calibration_it_cannot_use_is_dropped_and_the_last_one_kept(ros, gener
     rig = Rig(ros)
     rig.send_info()
     first = rig.node._renderer
+    first_vbo = first._vbo
 
     def send(camera):
         dropped = rig.node.counters["dropped"]
@@ -376,7 +377,7 @@ def test_a_calibration_it_cannot_use_is_dropped_and_the_last_one_kept(ros, gener
     assert rig.send(0, frame_msg(0), boosted_msg(generator, 0)).state != TrackerStatus.LOST  # still tracking
     monkeypatch.setattr(tracker_node, "Renderer", real_renderer)
     send(other)  # the same calibration, tried again, now taken; the old renderer's GL objects are freed
-    assert rig.node._renderer is not first and type(first._vbo.mglo).__name__ == "InvalidObject"
+    assert rig.node._renderer is not first and type(first_vbo.mglo).__name__ == "InvalidObject"
 
 
 @pytest.mark.parametrize(
