@@ -249,7 +249,7 @@ def test_the_launch_files_python_without_rosbags_still_reads_a_bag_folders_topic
 def test_a_string_parameter_outside_the_basic_plane_reaches_rcl_as_written(tmp_path, ros_domain_id):
     """json.dumps's ASCII escapes (a surrogate pair for an emoji) made rcl refuse the override and
     every node fail to start."""
-    value = str(tmp_path / "landing 😀 #1: deck")
+    value = str(tmp_path / "landing 😀 #1: deck \x85\x7f\u2028")  # NEL, DEL and U+2028: YAML line breaks or refused
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=ros_domain_id, args=["--ros-args", "-p", f"path:={graph_module.string_parameter(value)}"])
     try:

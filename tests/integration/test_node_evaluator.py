@@ -213,6 +213,19 @@ def test_poses_without_ground_truth_are_bounded(ros, tmp_path):
         report / "tables.txt").read_text()
 
 
+def test_poses_forgotten_before_their_ground_truth_came_are_reported(ros, tmp_path, monkeypatch):
+    """Ground truth more than the kept poses behind: the forgotten poses' frames count as lost and
+    the report said nothing of them once the poses it held had all met their truth."""
+    monkeypatch.setattr(evaluator_node, "POSES_WITHOUT_TRUTH", 3)
+    node = Rig(ros, tmp_path).node
+    for k in range(5):
+        node._on_pose(pose_msg(k))
+    for k in range(5):
+        node._on_truth(truth_msg(k))
+    tables = (node.write() / "tables.txt").read_text()
+    assert tables.rstrip().endswith("UNSCORED: 2 poses without ground truth (the oldest 2 forgotten)")
+
+
 @pytest.mark.parametrize(
     "override, message",
     [

@@ -233,6 +233,8 @@ def test_training_uses_every_folder_and_resumes_only_with_its_own_settings(tmp_p
     with pytest.raises(ValueError, match=r"last.pt does not fit a network of width 16"):
         train(TrainConfig(**{**tuned.__dict__, "width": 16}), progress=False)
     assert load_checkpoint(tuned)["frozen_normalisation"] is False
+    (tmp_path / "run" / "last.pt").rename(tmp_path / "moved.pt")  # the start of a run is not needed to resume it
+    train(tuned, resume=True, progress=False)
 
 
 def test_a_checkpoint_of_a_run_from_an_exported_model_keeps_its_normalisation_frozen(tmp_path):

@@ -211,6 +211,9 @@ def test_undefined_statistics_are_null_in_the_file_and_nan_when_read_back(tmp_pa
     back = load_summary(tmp_path / "s.json")
     assert np.isnan(back["variants"]["one"]["translation_m"]["sd"]) and np.isnan(back["variants"]["lost"]["translation_m"]["mae"])
     assert back["variants"]["lost"]["lost_frames_pct"] == 100.0
+    doc["variants"]["one"]["ms_per_frame"] = float("nan")  # a times column with a NaN: the file was not written
+    save_summary(tmp_path / "t.json", doc)
+    assert json.loads((tmp_path / "t.json").read_text())["variants"]["one"]["ms_per_frame"] is None
 
 
 def test_one_value_has_no_sample_standard_deviation():

@@ -25,6 +25,7 @@ ROSDEP_KEYS = {
     "yaml": "python3-yaml",
     "matplotlib": "python3-matplotlib",
     "tqdm": "python3-tqdm",
+    "PIL": "python3-pil",
 }
 # Installed with pip from requirements.txt on a ship PC (no rosdep key, or a pip key only).
 PIP_ONLY = {"moderngl", "onnxruntime", "pymavlink", "rosbags", "trimesh"}

@@ -98,6 +98,10 @@ def test_a_scenarios_files_are_found_beside_it_or_in_config_not_in_the_working_d
     (tmp_path / "mine" / "landing.yaml").write_text("camera_info: lens.yaml\napproach: {}\n")
     monkeypatch.chdir(tmp_path / "mine" / "..")
     assert scenario_camera(load_scenario(tmp_path / "mine" / "landing.yaml")).K[0, 0] == 800.0
+    save_camera_info_yaml(other, tmp_path / "cwd_only.yaml")  # only in the working directory: not taken
+    (tmp_path / "mine" / "landing.yaml").write_text("camera_info: cwd_only.yaml\napproach: {}\n")
+    with pytest.raises(FileNotFoundError, match=r"mine/cwd_only.yaml"):
+        scenario_camera(load_scenario(tmp_path / "mine" / "landing.yaml"))
 
 
 def test_unknown_scenario_name():

@@ -53,7 +53,18 @@ UniqueKeyLoader.add_implicit_resolver(
     _INT, re.compile(r"^[-+]?(?:0|[1-9][0-9]*|0[0-7]+|0[xX][0-9a-fA-F]+)$"), list("-+0123456789"))
 UniqueKeyLoader.add_implicit_resolver(
     _FLOAT, re.compile(r"^(?:[-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][-+]?[0-9]+)?"
-                       r"|[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN))$"), list("-+0123456789."))
+                       r"|[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN)|[-+]?(?i:nan|inf|infinity))$"),
+    list("-+0123456789.nNiI"))
+
+
+def _rcl_int(loader, node) -> int:
+    """An integer as strtol with base 0 reads it: 0x / 0X hexadecimal, a leading 0 octal."""
+    text = loader.construct_scalar(node)
+    digits = text.lstrip("+-")
+    return int(text, 16 if digits[:2] in ("0x", "0X") else 8 if len(digits) > 1 and digits[0] == "0" else 10)
+
+
+UniqueKeyLoader.add_constructor(_INT, _rcl_int)
 
 
 def load_node_parameters(path, node: str) -> dict:

@@ -21,6 +21,7 @@ This module imports no ROS module: the nodes do, in their own processes.
 import json
 import math
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -74,7 +75,10 @@ STACK_DUMP_S = 1.0  # a hung node's time to print its stacks (SIGUSR1) before SI
 def string_parameter(value) -> str:
     """``value`` as a string for a ``-p key:=value`` override, which rcl reads as YAML: quoted, so
     that a path with " #" is not cut at its comment or one with ": " refused."""
-    return json.dumps(str(value), ensure_ascii=False)  # rcl refuses the \\ud83d-style pairs of ASCII JSON
+    # Not ASCII JSON: rcl refuses its \ud83d-style surrogate pairs. Characters YAML reads as line
+    # breaks or refuses unescaped (DEL, C1, U+2028/9, BOM) stay escaped.
+    return re.sub("[\x7f-\x9f\u2028\u2029\ufeff]", lambda m: f"\\u{ord(m.group()):04x}",
+                  json.dumps(str(value), ensure_ascii=False))
 
 
 def ready_topics_parameter(topics=PIPELINE_TOPICS) -> str:

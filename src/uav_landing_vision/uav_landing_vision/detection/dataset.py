@@ -420,6 +420,12 @@ class SampleGenerator:
         self.backgrounds = BackgroundSource(self.camera, cfg)
         self.landing = LandingFrames(cfg, self.camera, self.mesh) if cfg.landing_fraction else None
 
+    def release(self) -> None:
+        """Free its renderers' GL objects (moderngl frees none when garbage collected)."""
+        self.renderer.release()
+        for _, synth, _, _ in (self.landing.parts.values() if self.landing is not None else ()):
+            synth.renderer.release()
+
     def sample(self, index: int) -> tuple[np.ndarray, np.ndarray | None]:
         cfg, rng = self.cfg, image_rng(self.cfg.seed, index)
         # Drawn only when landing frames are asked for: datasets made without them keep their images.
@@ -511,8 +517,13 @@ def generate(cfg: DatasetConfig, out_dir, progress: bool = True, workers: int = 
     if (out / "dataset.json").exists():
         raise FileExistsError(f"{out} already holds a dataset; choose a new folder")
     camera = dataset_camera(cfg)
-    _start_worker(cfg)  # here first: bad images, video or seed are refused before anything is written,
-    _record_settings(cfg, out)  # and by name (in a worker they broke the pool)
+    # Bad images, video or seed are refused before anything is written, and by name (raised in a
+    # worker, they broke the pool); with workers, the generator made to check them is freed.
+    if workers == 1:
+        _start_worker(cfg)
+    else:
+        SampleGenerator(cfg).release()
+    _record_settings(cfg, out)
     (out / "images").mkdir(exist_ok=True)
     (out / "labels").mkdir(exist_ok=True)
     chunks = [range(a, min(a + 25, cfg.count)) for a in range(0, cfg.count, 25)]

@@ -251,7 +251,8 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
         shuffle.set_state(state["shuffle_rng"])
         start_epoch, log = state["epoch"] + 1, state["log"]
 
-    frozen = folded_normalisation(cfg)
+    # A resumed run keeps its own (its start may be gone); a checkpoint older than the flag asks its start.
+    frozen = state["frozen_normalisation"] if resume and "frozen_normalisation" in state else folded_normalisation(cfg)
     set_training(net, frozen)
     for epoch in range(start_epoch, cfg.epochs):
         train_set.epoch = epoch

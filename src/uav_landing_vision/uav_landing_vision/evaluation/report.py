@@ -160,8 +160,13 @@ def validate_summary(doc) -> None:
 def save_summary(path, doc: dict) -> None:
     """Write the validated summary as strict JSON, an undefined statistic as ``null``."""
     validate_summary(doc)
-    Path(path).write_text(json.dumps(_map_statistics(doc, lambda x: x if np.isfinite(x) else None),
-                                     indent=2, allow_nan=False) + "\n")
+    out = _map_statistics(doc, _finite_or_none)
+    out["variants"] = {name: {**v, "ms_per_frame": _finite_or_none(v["ms_per_frame"])} for name, v in out["variants"].items()}
+    Path(path).write_text(json.dumps(out, indent=2, allow_nan=False) + "\n")
+
+
+def _finite_or_none(x):
+    return x if x is not None and np.isfinite(x) else None
 
 
 def load_summary(path) -> dict:

@@ -151,11 +151,12 @@ class EvaluatorNode(LandingNode):
             short = f"INCOMPLETE: {len(truth.stamps_ns)} of the {cfg.frames} ground-truth frames expected were received"
             self.get_logger().warn(short)
             appendix = f"{appendix}\n\n{short}"
-        if self._without_truth:  # a replay's truth precedes its pose: these truths were lost or never recorded
-            stamps, forgotten = list(self._without_truth), self.counters["poses_without_truth_dropped"]
+        stamps, forgotten = list(self._without_truth), self.counters["poses_without_truth_dropped"]
+        if stamps or forgotten:  # a replay's truth precedes its pose: these truths were lost or never recorded
             unscored = (f"UNSCORED: {len(stamps) + forgotten} poses without ground truth"
-                        f"{f' (the oldest {forgotten} forgotten)' if forgotten else ''}, stamped (ns) "
-                        f"{', '.join(map(str, stamps[:5]))}{' ...' if len(stamps) > 5 else ''}")
+                        f"{f' (the oldest {forgotten} forgotten)' if forgotten else ''}"
+                        f"{', stamped (ns) ' if stamps else ''}{', '.join(map(str, stamps[:5]))}"
+                        f"{' ...' if len(stamps) > 5 else ''}")
             self.get_logger().warn(unscored)
             appendix = f"{appendix}\n\n{unscored}"
         text = write_report(out, cfg.sequence, {cfg.variant: errors}, appendix=appendix)

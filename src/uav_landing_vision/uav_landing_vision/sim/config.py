@@ -154,7 +154,7 @@ def _with_files_found(s: Scenario, folder: Path) -> Scenario:
                 return str(config_path(name))
             except FileNotFoundError:
                 pass
-        return name
+        return str((folder / name).resolve())  # not there: its reader names where it was looked for
 
     background = replace(s.background, video=found(s.background.video, shipped=False))
     return replace(s, camera_info=found(s.camera_info, shipped=True), background=background)
