@@ -141,9 +141,10 @@ def load_scenario(name_or_path) -> Scenario:
 
 
 def _with_files_found(s: Scenario, folder: Path) -> Scenario:
-    """``s`` with a relative ``camera_info`` or video path taken from the scenario's ``folder`` where
-    the file is there, and else a ``camera_info`` name from ``config/``: read from the working
-    directory first, a ./camera.yaml replaced the shipped scenarios' calibration unnoticed."""
+    """``s`` with a relative ``camera_info`` or video path taken from the scenario's ``folder``, a
+    ``camera_info`` not there from ``config/`` (never from the working directory: a ./camera.yaml
+    replaced the shipped scenarios' calibration unnoticed); a file found nowhere keeps the
+    folder's path, which its reader names."""
     def found(name: str, shipped: bool) -> str:
         if not name or Path(name).is_absolute():
             return name
