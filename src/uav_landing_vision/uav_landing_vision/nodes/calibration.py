@@ -42,8 +42,8 @@ class Calibration:
     def _camera(self, msg, use) -> CameraModel:
         camera = camera_from_info_msg(msg)
         if self.rectified and camera.is_distorted:
-            raise CameraInfoError(f"{camera.distortion_model} distortion {camera.dist.tolist()} in the camera_info of a rectified image "
-                                  "(expected none, as undistort's camera/camera_info_rect has)")
+            raise CameraInfoError(f"{camera.distortion_model} distortion {camera.dist.tolist()} in the camera_info "
+                                  "of a rectified image (expected none, as undistort's camera/camera_info_rect has)")
         if use is not None:
             use(camera)
         return camera
