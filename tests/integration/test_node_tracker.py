@@ -257,6 +257,27 @@ def test_a_replay_started_again_restarts_the_track(ros, generator):
     assert rig.status_of(3).state == TrackerStatus.ACQUIRING  # the track restarted
 
 
+def test_a_new_time_lines_hypotheses_that_come_before_its_image_are_kept(ros, generator):
+    """They were dropped as having come after their frame (stamped behind the old time-line's
+    last frame), and the restart emptied the cache: the first frame of a replay started again
+    waited for them, then was tracked without them."""
+    rig = Rig(ros)
+    rig.send_info()
+    for k in range(3):  # a first run stamped 5 s later than the second
+        image, hyps = frame_msg(k), boosted_msg(generator, k)
+        image.header.stamp.sec += 5
+        hyps.header.stamp.sec += 5
+        rig.hyp_pub.publish(hyps)
+        rig.image_pub.publish(image)
+        assert ros.spin_until(lambda: rig.node.counters["tracked"] == k + 1)
+    dropped = rig.node.counters["dropped"]
+    rig.hyp_pub.publish(boosted_msg(generator, 0))  # the new time-line: hypotheses first
+    assert ros.spin_until(lambda: len(rig.node._cache) == 1)
+    status = rig.send(0, frame_msg(0))
+    assert status is not None and status.state == TrackerStatus.ACQUIRING  # a fresh track, from its hypotheses
+    assert rig.node.counters["dropped"] == dropped and rig.node.counters["hypotheses_received"] == 4
+
+
 def test_an_unusable_frame_never_restarts_the_track_and_a_restart_counts_what_it_drops(ros, generator):
     """A frame stamped far behind the last tracked one starts a new time-line. It used to do so
     before it was checked: a malformed image or one of the wrong size stamped 0 (a driver's

@@ -73,9 +73,10 @@ class StampCache:
         expired = [s for s, e in self._entries.items() if now - e.since > max_age_s]
         return self.pop_older(max(expired) + 1) if expired else []
 
-    def clear(self) -> list[Entry]:
-        """Remove and return every entry, oldest first."""
-        return [self._entries.pop(s) for s in sorted(self._entries)]
+    def pop_newer(self, stamp_ns: int) -> list[Entry]:
+        """Remove and return the entries stamped after ``stamp_ns``, oldest first."""
+        new = sorted(s for s in self._entries if s > stamp_ns)
+        return [self._entries.pop(s) for s in new]
 
     def has_newer(self, name: str, stamp_ns: int) -> bool:
         """Whether an entry stamped after ``stamp_ns`` holds a message of input ``name``."""

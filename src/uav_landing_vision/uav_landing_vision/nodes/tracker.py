@@ -163,7 +163,8 @@ class TrackerNode(LandingNode):
             f"image stamped {stamp} ns is {(self._last_stamp - stamp) * 1e-9:.1f} s before the last tracked frame: "
             "a new time-line (replay or clock restarted?); the track restarts")
         self._last_stamp = -1
-        if waiting := self._cache.clear():
+        # The new time-line's own hypotheses may have come first: only the old one's entries go.
+        if waiting := self._cache.pop_newer(stamp + RESTART_BEHIND_NS):
             self.drop(f"{len(waiting)} stamp(s) of the old time-line still waiting for their pair, not tracked "
                       "(the new time-line started)", count=len(waiting))
         if self._tracker is not None:
@@ -172,7 +173,7 @@ class TrackerNode(LandingNode):
     def _on_hypotheses(self, msg: PoseHypotheses) -> None:
         self.counters["hypotheses_received"] += 1
         stamp = stamp_ns(msg.header.stamp)
-        if stamp <= self._last_stamp:
+        if 0 <= self._last_stamp - stamp <= RESTART_BEHIND_NS:  # further behind: a new time-line's, before its image
             self.drop(f"hypotheses stamped {stamp} ns arrived after their frame was tracked")
             return
         try:
