@@ -270,7 +270,7 @@ def test_track_states_lost_reinitialise_acquire_track(renderer, frame):
     assert states == [TrackState.ACQUIRING, TrackState.TRACKING, TrackState.TRACKING]
     # the UAV leaves: an empty sky scores 0 everywhere
     first = tracker.step(SKY, 4, hypotheses(4))
-    assert first.state == TrackState.TRACKING and not first.has_pose
+    assert first.state == TrackState.ACQUIRING and not first.has_pose  # not TRACKING on a frame that scored nothing
     second = tracker.step(SKY, 5, hypotheses(5))
     assert second.state == TrackState.LOST and tracker.particles is None
     assert tracker.hypotheses_needed() == 40
@@ -376,7 +376,10 @@ def test_track_monitor_transitions():
     assert m.state == TrackState.LOST
     m.initialised()
     assert [m.update(v) for v in (0.6, 0.3, 0.6, 0.6)] == [TrackState.ACQUIRING] * 3 + [TrackState.TRACKING]
-    assert [m.update(v) for v in (0.05, 0.05, 0.2, 0.05, 0.05)] == [TrackState.TRACKING] * 5  # interrupted
+    # A bad frame is not vouched for (the bridge sent its pose); LOST only after lost_frames in a row.
+    assert [m.update(v) for v in (0.05, 0.05, 0.2, 0.6, 0.6)] == [TrackState.ACQUIRING] * 4 + [TrackState.TRACKING]
+    assert [m.update(v) for v in (0.2, 0.1, 0.6)] == [TrackState.TRACKING] * 3  # on lost_likelihood: not bad
+    assert [m.update(v) for v in (0.05, 0.05)] == [TrackState.ACQUIRING] * 2
     assert m.update(0.0) == TrackState.LOST
     m.initialised()
     assert [m.update(0.6, coasting=c) for c in (0, 0, 15, 16, 0, 0)] == [  # max_coast_frames 15 by default

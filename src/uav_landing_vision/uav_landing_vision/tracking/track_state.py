@@ -14,6 +14,9 @@ Rules, checked once per frame on the best particle's likelihood ``b``:
   sensor noise never repeats a frame, but a frozen camera or driver re-sending its last picture
   with new stamps does, and the track would hold the UAV still, and say TRACKING, while the
   aircraft flies on;
+- TRACKING → ACQUIRING at the first frame with ``b < lost_likelihood``: the tracker's own score
+  says that frame's pose is not the UAV, and the GCS bridge takes only TRACKING poses (it went
+  on sending them for ``lost_frames − 1`` such frames);
 - any state → LOST after ``lost_frames`` consecutive frames with ``b < lost_likelihood``, or at
   once when there is nothing to track (no particles and no hypotheses). LOST drops the
   particles; the next frame with hypotheses re-initialises the filter (ACQUIRING again).
@@ -79,7 +82,7 @@ class TrackMonitor:
         self._good = self._good + 1 if best_likelihood >= cfg.acquire_likelihood and not unconfirmed else 0
         if self._bad >= cfg.lost_frames:
             return self.lost()
-        if unconfirmed and self.state == TrackState.TRACKING:
+        if (unconfirmed or self._bad) and self.state == TrackState.TRACKING:
             self.state = TrackState.ACQUIRING
         if self.state == TrackState.ACQUIRING and self._good >= cfg.acquire_frames:
             self.state = TrackState.TRACKING
