@@ -215,10 +215,25 @@ def test_binning_and_regions_of_interest_are_refused():
     """K and D describe the full sensor: a binned or cropped stream would not match them."""
     for ok in (_info_msg(), _info_msg((1, 1)), _info_msg(roi=(0, 0, 640, 480))):
         assert camera_from_info_msg(ok).width == 640
-    with pytest.raises(CameraInfoError, match="binning 2x2"):
-        camera_from_info_msg(_info_msg((2, 2)))
-    with pytest.raises(CameraInfoError, match="region of interest 320x240\\+10\\+20"):
-        camera_from_info_msg(_info_msg(roi=(10, 20, 320, 240)))
+    for binning in ((2, 2), (2, 1), (1, 2)):
+        with pytest.raises(CameraInfoError, match=f"binning {binning[0]}x{binning[1]}"):
+            camera_from_info_msg(_info_msg(binning))
+    for roi in ((10, 20, 320, 240), (0, 20, 640, 460), (10, 0, 630, 480)):
+        with pytest.raises(CameraInfoError, match="region of interest"):
+            camera_from_info_msg(_info_msg(roi=roi))
+
+
+def test_a_stereo_rectification_is_refused_and_p_is_k_with_no_baseline(tmp_path):
+    """R rotates a stereo camera's rays and P's fourth column is its baseline (image_geometry reads
+    Tx ≠ 0 as the right eye): a monocular camera has R = I and P = [K | 0]."""
+    turned = [0.0, 1, 0, -1, 0, 0, 0, 0, 1]
+    with pytest.raises(CameraInfoError, match="R must be identity"):
+        camera_from_info_fields(640, 480, "plumb_bob", [0] * 5, [500, 0, 320, 0, 500, 240, 0, 0, 1], turned)
+    (tmp_path / "stereo.yaml").write_text(f"{_K}rectification_matrix: {{rows: 3, cols: 3, data: {turned}}}\n")
+    with pytest.raises(CameraInfoError, match="rectification rotation"):
+        load_camera_info_yaml(tmp_path / "stereo.yaml")
+    camera = CameraModel(640, 480, [[500, 0, 320], [0, 510, 240], [0, 0, 1]])
+    np.testing.assert_array_equal(camera_info_fields(camera)["p"], np.hstack([camera.K, np.zeros((3, 1))]).ravel())
 
 
 def test_skew_is_refused(points):
@@ -269,6 +284,17 @@ def test_a_matrix_no_lens_has_is_refused(k, message):
     """Such a camera_info was taken: every particle drawn off the image, the tracker 'ready' and never tracking."""
     with pytest.raises(ValueError, match=message):
         CameraModel(640, 480, k)
+
+
+def test_each_bound_checks_its_own_axis():
+    """A principal point or a focal length checked against the other axis's size went unnoticed."""
+    K = [[500, 0, 600], [0, 500, 240], [0, 0, 1]]
+    assert CameraModel(640, 480, K).cx == 600  # cx beyond the height, inside the width
+    with pytest.raises(ValueError, match="principal point"):
+        CameraModel(480, 640, K)  # the same cx beyond a portrait camera's width
+    CameraModel(1000, 10, [[1e6, 0, 500], [0, 1, 5], [0, 0, 1]])  # 0.06° x 157°; read crosswise, 180° x 0.0006°
+    CameraModel(16384, 480, [[5000, 0, 8192], [0, 5000, 240], [0, 0, 1]])  # a side of MAX_IMAGE_SIDE
+    assert CameraModel(640, 480, K, frame_id="deck").rectified().frame_id == "deck"
 
 
 def test_the_extreme_lenses_still_taken():

@@ -158,6 +158,12 @@ def test_summary_schema_roundtrip_and_rejection(tmp_path):
         validate_summary(bad)
     with pytest.raises(SummaryError):
         validate_summary({"sequence": "s", "frames": "5", "variants": {}})
+    for change in (lambda d: d.update(extra=1), lambda d: d["variants"]["C4N2"]["translation_m"].update(median="x"),
+                   lambda d: d["variants"]["C4N2"].update(ms_per_frame="5")):
+        bad = json.loads(json.dumps(doc))
+        change(bad)
+        with pytest.raises(SummaryError):
+            validate_summary(bad)
 
 
 def test_tables_csv_and_plots(tmp_path):
@@ -214,6 +220,24 @@ def test_undefined_statistics_are_null_in_the_file_and_nan_when_read_back(tmp_pa
     doc["variants"]["one"]["ms_per_frame"] = float("nan")  # a times column with a NaN: the file was not written
     save_summary(tmp_path / "t.json", doc)
     assert json.loads((tmp_path / "t.json").read_text())["variants"]["one"]["ms_per_frame"] is None
+
+
+def test_an_overflowing_statistic_is_null_in_the_file_and_infinite_errors_are_left_out(tmp_path):
+    """Errors near 1e200 m overflow the RMSE to inf: the summary must still be written."""
+    huge = pose_errors(np.zeros((2, 3)), np.tile([0, 0, 0, 1.0], (2, 1)), np.array([[1e200, 0, 0], [2e200, 0, 0]]),
+                       np.tile([0, 0, 0, 1.0], (2, 1)))
+    doc = make_summary("seq", 2, {"far": variant_summary(huge)})
+    assert not np.isfinite(doc["variants"]["far"]["translation_m"]["rmse"])
+    save_summary(tmp_path / "s.json", doc)
+    assert json.loads((tmp_path / "s.json").read_text())["variants"]["far"]["translation_m"]["rmse"] is None
+    assert error_statistics([1.0, 2.0, 3.0, np.inf]) == error_statistics([1.0, 2.0, 3.0])
+
+
+def test_a_frame_without_a_position_has_no_error_in_any_column():
+    t_est = np.zeros((2, 3))
+    t_est[0, 0] = np.nan
+    err = pose_errors(np.zeros((2, 3)), np.tile([0, 0, 0, 1.0], (2, 1)), t_est, np.tile([0, 0, 0, 1.0], (2, 1)))
+    assert all(np.isnan(err[c][0]) and np.isfinite(err[c][1]) for c in err)
 
 
 def test_one_value_has_no_sample_standard_deviation():

@@ -51,6 +51,20 @@ def test_shipped_scenarios_load(name):
     ("approach: {}\nbackground: {sun_elevation_deg: 200}\n", r"sun_elevation_deg must be in \[0, 90\]"),
     ("single_frame: {distances_m: [5, 10], poses_per_distance: 100000000}\n",
      "single_frame: 2 distances × 100000000 poses is over 1000000 frames"),
+    # Each range and ordering check on its own (a mutation audit found them untested).
+    ("approach: {}\nsingle_frame: {}\n", "exactly one of"),
+    ("approach: {}\nstart_time_s: 3000000000\n", "start_time_s must be in"),
+    ("approach: {alpha1_deg: 5, alpha2_deg: 5}\n", "alpha2_deg < alpha1_deg"),
+    ("approach: {beta2_deg: 120}\n", "beta2_deg must be in"),
+    ("approach: {start_range_m: [100, 80]}\n", "start_range_m must be"),
+    ("approach: {disturbance_band_hz: [0.8, 0.1]}\n", "disturbance_band_hz"),
+    ("single_frame: {distances_m: [0, 5]}\n", "distances_m must be positive"),
+    ("single_frame: {poses_per_distance: 0}\n", "poses_per_distance must be at least 1"),
+    ("single_frame: {angle_limit_deg: 270}\n", "angle_limit_deg must be in"),
+    ("approach: {}\nship: {wave_period_s: [10, 5]}\n", "wave_period_s"),
+    ("approach: {}\nimaging: {albedo: [1.5, 0.8, 0.8]}\n", "albedo"),
+    ("approach: {}\nimaging: {samples: 0}\n", "samples"),
+    ("approach: {}\nship: {net_height_m: 0.0, camera_position_m: [5, 0, 0.5]}\n", "net_height_m must be positive"),
 ])
 def test_bad_scenarios_are_clear_errors(tmp_path, text, match):
     path = tmp_path / "bad.yaml"
