@@ -85,6 +85,16 @@ class Rig:
         assert self.ros.spin_until(lambda: self.status_of(k) is not None or self.node.counters["dropped"] > dropped)
         return self.status_of(k)
 
+    def track_a_first_run(self, generator, frames: int = 3):
+        """Track frames 0 .. frames - 1 stamped 5 s later than frame_msg's: a replay's first run."""
+        for k in range(frames):
+            image, hyps = frame_msg(k), boosted_msg(generator, k)
+            image.header.stamp.sec += 5
+            hyps.header.stamp.sec += 5
+            self.image_pub.publish(image)
+            self.hyp_pub.publish(hyps)
+            assert self.ros.spin_until(lambda: self.node.counters["tracked"] == k + 1)
+
     def pose_of(self, k: int):
         return next((p for p in self.poses if stamp_ns(p.header.stamp) == stamp_ns(hypotheses_msg(k).header.stamp)), None)
 
@@ -240,13 +250,7 @@ def test_hypotheses_whose_image_was_lost_are_skipped_not_dropped(ros, generator)
 def test_a_replay_started_again_restarts_the_track(ros, generator):
     rig = Rig(ros)
     rig.send_info()
-    for k in range(3):  # a first run of frames 0-2, stamped 5 s later than the second
-        image, hyps = frame_msg(k), boosted_msg(generator, k)
-        image.header.stamp.sec += 5
-        hyps.header.stamp.sec += 5
-        rig.image_pub.publish(image)
-        rig.hyp_pub.publish(hyps)
-        assert ros.spin_until(lambda: rig.node.counters["tracked"] == k + 1)
+    rig.track_a_first_run(generator)
     late = frame_msg(3)
     late.header.stamp.sec += 4  # 1 s behind the last: out of order, dropped
     assert rig.send(3, late) is None and "is not after the last tracked frame" in rig.node.last_error
@@ -263,13 +267,7 @@ def test_a_new_time_lines_hypotheses_that_come_before_its_image_are_kept(ros, ge
     waited for them, then was tracked without them."""
     rig = Rig(ros)
     rig.send_info()
-    for k in range(3):  # a first run stamped 5 s later than the second
-        image, hyps = frame_msg(k), boosted_msg(generator, k)
-        image.header.stamp.sec += 5
-        hyps.header.stamp.sec += 5
-        rig.hyp_pub.publish(hyps)
-        rig.image_pub.publish(image)
-        assert ros.spin_until(lambda: rig.node.counters["tracked"] == k + 1)
+    rig.track_a_first_run(generator)
     dropped = rig.node.counters["dropped"]
     rig.hyp_pub.publish(boosted_msg(generator, 0))  # the new time-line: hypotheses first
     assert ros.spin_until(lambda: len(rig.node._cache) == 1)
