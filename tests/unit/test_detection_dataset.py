@@ -216,7 +216,7 @@ def test_an_image_that_cannot_be_written_stops_the_run(tmp_path, monkeypatch):
     save_camera_info_yaml(camera, tmp_path / "cam.yaml")
     cfg = DatasetConfig(count=1, seed=7, camera_info=str(tmp_path / "cam.yaml"), families=("normal",), banks_per_family=1)
     monkeypatch.setattr(cv2, "imwrite", lambda *args: False)
-    with pytest.raises(OSError, match=r"cannot write .*000000.jpg"):
+    with pytest.raises(OSError, match=r"cannot write the image .*000000.jpg"):
         generate(cfg, tmp_path / "data", progress=False)
     assert not (tmp_path / "data" / "labels" / "000000.txt").exists()
 

@@ -124,7 +124,7 @@ def test_a_frame_that_cannot_be_written_as_png_stops_the_run_and_leaves_no_folde
     s = load_scenario("normal")
     s = dataclasses.replace(s, approach=dataclasses.replace(s.approach, start_range_m=(12.0, 14.0)))
     monkeypatch.setattr(sim_bag.cv2, "imwrite", lambda *args: False)
-    with pytest.raises(OSError, match=r"cannot write the frame .*\.png"):
+    with pytest.raises(OSError, match=r"cannot write the image .*\.png"):
         simulate(s, tmp_path / "bag", seed=4, frames=2, png_dir=tmp_path / "png", progress=False, mesh=MESH)
     assert not (tmp_path / "png").exists() and not (tmp_path / "bag").exists()
 

@@ -111,6 +111,7 @@ def overlay_strip(bag: Path, estimates, path: Path, count: int) -> Path:
     """A row of ``count`` undistorted frames, evenly spread over the bag, each with the outline
     of the model at the estimate and at the ground truth (when there is one), cropped about
     the UAV; written to ``path``."""
+    from .camera import write_image
     from .model import fixed_wing_mesh
     from .render import Renderer
     from .sim import iter_frames, read_camera, read_poses
@@ -133,8 +134,7 @@ def overlay_strip(bag: Path, estimates, path: Path, count: int) -> Path:
                 _outline(frame, renderer, estimate_at[int(stamp)], ESTIMATE_COLOUR)
             tiles.append(_crop_about(frame, camera, true_pose[0], f"frame {k}, {true_pose[0][2]:.0f} m"))
     path.parent.mkdir(parents=True, exist_ok=True)
-    if not cv2.imwrite(str(path), cv2.cvtColor(np.hstack(tiles), cv2.COLOR_RGB2BGR)):
-        raise OSError(f"cannot write {path}")
+    write_image(path, np.hstack(tiles))
     return path
 
 

@@ -8,7 +8,7 @@ from .camera_info import (
     load_camera_info_yaml,
     save_camera_info_yaml,
 )
-from .compressed import decode_compressed
+from .compressed import decode_compressed, write_image
 from .model import DEFAULT_FRAME_ID, CameraModel
 
 __all__ = [
@@ -21,4 +21,5 @@ __all__ = [
     "decode_compressed",
     "load_camera_info_yaml",
     "save_camera_info_yaml",
+    "write_image",
 ]

@@ -1,4 +1,5 @@
-"""Frames a camera driver sent compressed (``sensor_msgs/CompressedImage``: JPEG or PNG bytes).
+"""Frames a camera driver sent compressed (``sensor_msgs/CompressedImage``: JPEG or PNG bytes),
+and frames written as image files.
 
 ``image_transport``'s compressed plugin writes 8-bit colour frames as BGR JPEG or PNG (its
 ``format`` field, e.g. ``"rgb8; jpeg compressed bgr8"``, names the original encoding and what
@@ -60,3 +61,10 @@ def _header_size(buffer: np.ndarray, fmt: str) -> tuple[int, int]:
     except (OSError, ValueError, SyntaxError) as exc:  # Pillow's errors for unreadable headers
         raise ValueError(f"cannot decode the compressed image ({len(buffer)} bytes, format '{fmt}'): "
                          f"no image header found ({exc})") from exc
+
+
+def write_image(path, rgb: np.ndarray, params=()) -> None:
+    """Write the RGB ``uint8 (H, W, 3)`` image to ``path`` (format by its suffix, OpenCV ``params``);
+    OSError if it cannot: OpenCV returns False there (a full disk, a missing folder), not raises."""
+    if not cv2.imwrite(str(path), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), list(params)):
+        raise OSError(f"cannot write the image {path} (disk full or not writable?)")

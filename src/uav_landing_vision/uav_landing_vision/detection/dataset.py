@@ -24,6 +24,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ..camera import write_image
 from ..geometry import euler_zyx_to_matrix, matrix_to_quat, quat_multiply, quat_normalise
 from .detector import box_iou
 
@@ -469,10 +470,7 @@ def _write_images(out: Path, indices) -> list[float | None]:
             widths.append(float(boxes[0, 2] - boxes[0, 0]) if len(boxes) else None)
             continue
         image, box = gen.sample(i)
-        path = out / "images" / f"{i:06d}.jpg"
-        if not cv2.imwrite(str(path), cv2.cvtColor(image, cv2.COLOR_RGB2BGR),
-                           [cv2.IMWRITE_JPEG_QUALITY, gen.cfg.jpeg_quality]):  # OpenCV returns False, not raises
-            raise OSError(f"cannot write {path} (disk full or not writable?)")
+        write_image(out / "images" / f"{i:06d}.jpg", image, [cv2.IMWRITE_JPEG_QUALITY, gen.cfg.jpeg_quality])
         label.with_suffix(".tmp").write_text("" if box is None else yolo_line(box, w, h) + "\n")
         label.with_suffix(".tmp").replace(label)
         widths.append(None if box is None else float(box[2] - box[0]))

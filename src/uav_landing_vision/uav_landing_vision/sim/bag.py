@@ -19,6 +19,7 @@ from rosbags.typesys import Stores, get_typestore
 from .. import stamps
 from ..camera import (
     DEFAULT_FRAME_ID, CameraModel, camera_from_info_msg, camera_info_fields, decode_compressed, save_camera_info_yaml,
+    write_image,
 )
 
 IMAGE_TOPIC = "/camera/image_raw"
@@ -86,9 +87,7 @@ class SequenceWriter:
         for topic, msg in ((IMAGE_TOPIC, image), (INFO_TOPIC, info), (TRUTH_TOPIC, truth)):
             self.writer.write(self.conn[topic], stamp_ns, _TS.serialize_cdr(msg, self.conn[topic].msgtype))
         if self._csv:
-            path = self.png_dir / f"{stamp_ns}.png"
-            if not cv2.imwrite(str(path), cv2.cvtColor(image_rgb, cv2.COLOR_RGB2BGR)):  # OpenCV returns False, not raises
-                raise OSError(f"cannot write the frame {path} (disk full or not writable?)")
+            write_image(self.png_dir / f"{stamp_ns}.png", image_rgb)
             self._csv.writerow([stamp_ns, *map(repr, map(float, trans)), *map(repr, map(float, quat))])
 
     def close(self) -> None:
