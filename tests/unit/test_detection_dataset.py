@@ -334,3 +334,17 @@ def test_a_user_image_of_a_pixel_or_two_still_gives_a_background(tmp_path, shape
     for seed in range(20):
         background = source.draw(np.random.default_rng(seed), seed)
         assert background.shape == (36, 64, 3) and (background == (30, 20, 10)).all()
+
+
+def test_the_default_camera_is_the_shipped_one_not_a_camera_yaml_in_the_working_directory(tmp_path, monkeypatch):
+    from uav_landing_vision.camera import load_camera_info_yaml
+    from uav_landing_vision.detection.dataset import dataset_camera
+    from uav_landing_vision.resources import config_path
+
+    save_camera_info_yaml(CameraModel(192, 108, K), tmp_path / "camera.yaml")
+    monkeypatch.chdir(tmp_path)
+    shipped = load_camera_info_yaml(config_path("camera.yaml")).rectified()
+    camera = dataset_camera(DatasetConfig())
+    assert (camera.width, camera.height) == (shipped.width, shipped.height)
+    np.testing.assert_array_equal(camera.K, shipped.K)
+    assert dataset_camera(DatasetConfig(camera_info="camera.yaml")).width == 192  # named: read as given

@@ -16,7 +16,8 @@ def register(sub) -> None:
     p.add_argument("--families", default="normal,complex", help="comma list of normal,complex,images,video")
     p.add_argument("--images", default="", help="folder of user background images (family 'images')")
     p.add_argument("--video", default="", help="video file or bag (family 'video')")
-    p.add_argument("--camera", default="camera.yaml", help="camera_info YAML (config/ name or path)")
+    p.add_argument("--camera", default="",
+                   help="camera_info YAML (a path, else a config/ file name; default: config/camera.yaml)")
     p.add_argument("--approach-fraction", type=float, default=0.0,
                    help="fraction of head-on approach attitudes (default: 0; the rest landing-like/random)")
     p.add_argument("--landing-fraction", type=float, default=0.0,

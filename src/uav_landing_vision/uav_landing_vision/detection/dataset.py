@@ -39,7 +39,7 @@ class DatasetConfig:
 
     count: int = 1000
     seed: int = 0
-    camera_info: str = "camera.yaml"  # a config/ file name or a path; its rectified view is drawn
+    camera_info: str = ""  # a camera_info YAML (a path, else a config/ file name); "": config/camera.yaml
     families: tuple[str, ...] = ("normal", "complex")  # "images"/"video" need image_dir/video
     image_dir: str = ""
     video: str = ""
@@ -324,11 +324,14 @@ def photometric(image: np.ndarray, rng: np.random.Generator, cfg: DatasetConfig)
 
 
 def dataset_camera(cfg: DatasetConfig):
-    """The rectified camera the images are drawn with."""
+    """The rectified camera the images are drawn with: the shipped ``config/camera.yaml`` unless
+    ``cfg.camera_info`` names another (never a ``camera.yaml`` that happens to be in the working
+    directory)."""
     from ..camera import load_camera_info_yaml
-    from ..resources import config_file
+    from ..resources import config_file, config_path
 
-    return load_camera_info_yaml(config_file(cfg.camera_info)).rectified()
+    path = config_file(cfg.camera_info) if cfg.camera_info else config_path("camera.yaml")
+    return load_camera_info_yaml(path).rectified()
 
 
 # Landing seeds are drawn at or above this, so a training landing never repeats an evaluation
