@@ -7,7 +7,9 @@ import re
 import subprocess
 import sys
 
+import numpy as np
 import pytest
+import trimesh
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
@@ -67,9 +69,30 @@ def test_boosting_commands_refuse_missing_and_degenerate_inputs(tmp_path):
     (tmp_path / "line.obj").write_text("v -0.5 0 0\nv 0.5 0 0\nv 1.0 0 0\nf 1 2 3\n")
     _refused(["build-database", "--out", out, "--count", "2", "--model", str(tmp_path / "line.obj")], ".*no surface")
     _refused(["build-database", "--out", out, "--count", "0"], "database count must be positive")
+    mm = tmp_path / "uav_mm.stl"
+    trimesh.Trimesh(fixed_wing_mesh("low").vertices * 1000.0, fixed_wing_mesh("low").faces).export(mm)
+    _refused(["build-database", "--out", out, "--count", "2", "--model", str(mm)], ".*probably in 'mm'")
+    _refused(["build-database", "--out", out, "--count", "2", "--model", str(mm), "--unit", "inch"],
+             "unknown unit 'inch'")
     _refused(["eval-boosting", "--database", str(tmp_path / "nosuch.npz"), "--samples", "1", "--distances", "5",
               "--top", "1"], "pose database .*nosuch.npz not found")
     assert not list(tmp_path.glob("*.npz"))
+
+
+def test_build_database_reads_a_cad_file_in_its_unit(tmp_path):
+    """A CAD file in millimetres is usable (the size check's hint names ``--unit mm``) and gives
+    the database of the same file in metres."""
+    from uav_landing_vision.boosting.database import PoseDatabase
+
+    mesh = fixed_wing_mesh("low")
+    databases = []
+    for unit, scale in (("mm", 1000.0), ("m", 1.0)):
+        trimesh.Trimesh(mesh.vertices * scale, mesh.faces).export(tmp_path / f"uav_{unit}.stl")
+        out = tmp_path / f"db_{unit}.npz"
+        assert main(["build-database", "--out", str(out), "--count", "3", "--model", str(tmp_path / f"uav_{unit}.stl"),
+                     "--unit", unit, "--quiet"]) == 0
+        databases.append(PoseDatabase.load(out))
+    np.testing.assert_allclose(databases[0].obbs, databases[1].obbs, rtol=1e-4, atol=1e-3)
 
 
 def test_eval_detector_refuses_unusable_bags_and_models(tmp_path, bags):

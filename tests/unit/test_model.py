@@ -125,6 +125,20 @@ def test_load_wrong_unit_names_the_probable_one(tmp_path):
         load_mesh(path_m, unit="inch")
 
 
+@pytest.mark.parametrize("axis, side", [(0, 1), (1, -1), (2, 1)])
+def test_a_model_whose_origin_is_outside_it_is_not_in_the_body_frame(tmp_path, axis, side):
+    """The body frame's origin is the centre of gravity, which lies within the body's box: a CAD
+    file with its origin elsewhere (at a drawing's corner, say) would be tracked off by that
+    offset."""
+    ref = fixed_wing_mesh("low")
+    shift = np.zeros(3)
+    shift[axis] = side * 0.2 - ref.bounds[0 if side > 0 else 1][axis]  # the whole model 0.2 m to that side
+    path = tmp_path / "uav.stl"
+    trimesh.Trimesh(ref.vertices + shift, ref.faces).export(path)
+    with pytest.raises(MeshError, match="does not hold its own origin"):
+        load_mesh(path)
+
+
 def test_load_errors(tmp_path):
     with pytest.raises(MeshError, match="not found"):
         load_mesh(tmp_path / "missing.obj")

@@ -41,7 +41,8 @@ def register(sub) -> None:
 def _model_args(p) -> None:
     p.add_argument("--camera", type=Path, default=None, help="camera_info YAML (default: config/camera.yaml)")
     p.add_argument("--model", default="high",
-                   help="CAD file (OBJ/STL/PLY, metres, body FLU) or a built-in level: high, low (default: high)")
+                   help="CAD file (OBJ/STL/PLY, body FLU, origin at the CG) or a built-in level: high, low (default: high)")
+    p.add_argument("--unit", default="m", help="length unit of a CAD file: m, cm or mm (default: m)")
 
 
 def _load_camera_and_mesh(args):
@@ -50,7 +51,7 @@ def _load_camera_and_mesh(args):
     from ..resources import config_path
 
     camera = load_camera_info_yaml(args.camera or config_path("camera.yaml")).rectified()
-    mesh = fixed_wing_mesh(args.model) if args.model in LEVELS else load_mesh(args.model)
+    mesh = fixed_wing_mesh(args.model) if args.model in LEVELS else load_mesh(args.model, args.unit)
     return camera, mesh
 
 

@@ -49,6 +49,12 @@ def load_mesh(path, unit: str = "m") -> Mesh:
         raise MeshError(_size_message(path, unit, extent))
     if loaded.area <= 1e-12 * size**2:  # zero up to rounding
         raise MeshError(f"mesh file {path} has no surface: every triangle is degenerate (zero area)")
+    low, high = vertices.min(axis=0), vertices.max(axis=0)
+    if np.any(low > 1e-9 * size) or np.any(high < -1e-9 * size):  # a CG lies within the body's box
+        raise MeshError(
+            f"mesh {path} does not hold its own origin (its box spans {_span(low, high, unit)}): "
+            "it is not in the body frame, whose origin is the UAV's centre of gravity"
+        )
     if loaded.is_watertight:
         trimesh.repair.fix_normals(loaded, multibody=True)  # consistent, outward winding of every body
     mesh = Mesh(np.asarray(loaded.vertices) * UNITS[unit], np.asarray(loaded.faces))
@@ -59,6 +65,10 @@ def load_mesh(path, unit: str = "m") -> Mesh:
             stacklevel=2,
         )
     return mesh
+
+
+def _span(low, high, unit: str) -> str:
+    return " × ".join(f"[{a:.4g}, {b:.4g}]" for a, b in zip(low, high)) + f" {unit}"
 
 
 def _size_message(path: Path, unit: str, extent: float) -> str:
