@@ -294,6 +294,23 @@ def test_config_from_params_file_nested_groups_and_defaults(ros, tmp_path):
     assert list(node.get_parameter("inner.names").value) == ["a", "b"]
 
 
+def test_a_parameter_set_at_run_time_is_refused_not_reported_as_applied(ros):
+    """The node runs on the configuration it validated at start-up: a ``ros2 param set`` (here
+    through the parameter services, as ros2cli does) is refused, whether the value is good or not."""
+    from rclpy.parameter_client import AsyncParameterClient
+
+    node = ros.add(_Probe(context=ros.context))
+    client = AsyncParameterClient(ros.probe, "config_probe")
+    assert ros.spin_until(lambda: client.services_are_ready())
+    for param in (Parameter("count", value=9), Parameter("inner.gain", value=float("nan"))):
+        future = client.set_parameters([param])
+        assert ros.spin_until(future.done)
+        result = future.result().results[0]
+        assert not result.successful and "read-only" in result.reason
+    assert node.get_parameter("count").value == 3 and node.get_parameter("inner.gain").value == 1.5
+    assert node.config == _Config()
+
+
 @pytest.mark.parametrize(
     "override, message",
     [

@@ -2,7 +2,8 @@
 
 Parameters come from ``--ros-args --params-file config/<node>.yaml`` (or ``-p key:=value``);
 nested YAML groups arrive as dotted names (``cone.alpha1_deg``) and are nested again before
-validation, so the node reads the same file, with the same checks, as the CLI.
+validation, so the node reads the same file, with the same checks, as the CLI. They are
+read-only once declared: a change needs a restart, which validates it.
 """
 
 import array
@@ -34,6 +35,13 @@ DROP_LOG_PERIOD_S = 1.0  # a kind of drop is logged at most this often
 ROS_PARAMETERS = frozenset({"use_sim_time", "start_type_description_service"})
 # What an executor can raise when Ctrl-C / SIGTERM end a node (see stopped_by_shutdown).
 SHUTDOWN_ERRORS = (KeyboardInterrupt, ExternalShutdownException, RuntimeError)
+
+
+def _descriptor(**fields) -> ParameterDescriptor:
+    """Read-only: a node validates its parameters once, at start-up, and runs on that
+    configuration; a later ``ros2 param set`` is refused rather than reported as applied."""
+    return ParameterDescriptor(read_only=True, description="read at start-up; restart the node to change it",
+                               **fields)
 
 
 class LandingNode(Node):
@@ -88,7 +96,7 @@ class LandingNode(Node):
         untyped, which rclpy cannot declare statically typed: it is declared dynamically typed."""
         for name, param in self._parameter_overrides.items():
             if not self.has_parameter(name):
-                self.declare_parameter(name, param.value, ParameterDescriptor(dynamic_typing=param.value is None))
+                self.declare_parameter(name, param.value, _descriptor(dynamic_typing=param.value is None))
 
     def parameter_mapping(self) -> dict:
         """The node's own parameters as a nested mapping (dotted names → groups, arrays → lists)."""
@@ -130,7 +138,7 @@ class LandingNode(Node):
         prefix = f"{group}." if group else ""
         for name, value in _flatten(dataclasses.asdict(config), prefix):
             if not self.has_parameter(name) and _is_parameter_value(value):
-                self.declare_parameter(name, list(value) if isinstance(value, tuple) else value)
+                self.declare_parameter(name, list(value) if isinstance(value, tuple) else value, _descriptor())
         return config
 
     def take_camera_info(self, calibration, msg, use=None) -> bool:
