@@ -406,6 +406,13 @@ def test_a_calibration_it_cannot_use_is_dropped_and_the_last_one_kept(ros, gener
         (Parameter("node.hypotheses_timeout_s", value=0.0), "need hypotheses_timeout_s > 0"),
         (Parameter("node.overlay", value="yes"), "node.overlay: expected bool"),
         (Parameter("node.colour", value=1), r"unknown key\(s\) \['colour'\]"),
+        # Each passed start-up before: the renderer refused every calibration later (the tracker
+        # up, never tracking), or the first squared noise overflowed in a callback.
+        (Parameter("tile", value=2048), "tile must be 16 to 1024 px"),
+        (Parameter("refine.candidates", value=100000),
+         r"silhouette atlas .* exceeds .*; lower particles \(100\), refine.candidates \(100000\) or tile"),
+        (Parameter("motion.position_process_std", value=1e200), "position_process_std must be positive and at most"),
+        (Parameter("covariance_floor_m", value=1e200), "covariance_floor_m must be within 0 to 1000"),
     ],
 )
 def test_bad_parameters_fail_start_up(ros, override, message):

@@ -19,6 +19,7 @@ from .ukf import RotationUKF, TranslationUKF, UnscentedParams, check_dt
 
 Vec3 = tuple[float, float, float]
 KINDS = ("ukf", "ubif", "ubigaf")
+MAX_STD = 1e3  # the largest noise σ taken (m, m/s or rad/s): far beyond any UAV's motion
 
 
 @dataclass(frozen=True)
@@ -53,13 +54,13 @@ class MotionFilterConfig:
             object.__setattr__(self, name, tuple(map(float, z)))
         stds = ("omega_process_std", "initial_omega_std", "position_process_std", "velocity_process_std",
                 "position_measurement_std", "initial_position_std", "initial_velocity_std")
-        for name in stds:
+        for name in stds:  # bounded so that their squares, the filters' covariances, stay finite
             value = getattr(self, name)
-            if not (np.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be positive, got {value}")
+            if not 0 < value <= MAX_STD:
+                raise ValueError(f"{name} must be positive and at most {MAX_STD:g}, got {value}")
         fraction = self.position_measurement_range_fraction
-        if not (np.isfinite(fraction) and fraction >= 0):
-            raise ValueError(f"position_measurement_range_fraction must be non-negative, got {fraction}")
+        if not 0 <= fraction <= 1:
+            raise ValueError(f"position_measurement_range_fraction must be within 0 to 1, got {fraction}")
         UnscentedParams(self.ukf_alpha, self.ukf_beta, self.ukf_kappa)
         outliers.check_outlier_prob(self.outlier_prob)
 

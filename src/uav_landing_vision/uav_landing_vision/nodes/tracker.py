@@ -56,6 +56,7 @@ from ..config import ConfigError
 from ..model import fixed_wing_mesh
 from ..render import Renderer
 from ..render.context import GLContextError, gl_context
+from ..render.renderer import check_atlas
 from ..render.selftest import RendererSelfTestError, check_renderer
 from ..stamps import stamp_ns
 from ..tracking.upf import MAX_PREDICTION_STEPS, Tracker, TrackerConfig, gap_steps, render_batch
@@ -98,6 +99,12 @@ class TrackerNode(LandingNode):
             self_test = check_renderer()
         except (GLContextError, RendererSelfTestError) as exc:
             raise ConfigError(f"OpenGL: {exc}") from exc
+        try:  # checked now, not at the first camera_info: a node that can never draw must not start
+            check_atlas(ctx, self.config.tile, render_batch(self.config),
+                        f"lower particles ({self.config.particles}), refine.candidates "
+                        f"({self.config.refine.candidates}) or tile ({self.config.tile})")
+        except ValueError as exc:
+            raise ConfigError(f"tracker parameters: {exc}") from exc
         self.get_logger().info(f"GL_RENDERER: {ctx.info['GL_RENDERER']}; tracker {self.config.name}, M={self.config.particles}")
         self.get_logger().info(f"renderer self-test {self_test.summary}")
         self._mesh = fixed_wing_mesh("low")

@@ -39,11 +39,14 @@ _GL_OBJECTS = ("_sil_vao", "_full_vao", "_shade_vao", "_bg_vao", "_vbo", "_ibo",
                "_sil_prog", "_shade_prog", "_bg_prog", "_atlas", "_full", "_rgba")
 
 
+MIN_TILE, MAX_TILE = 8, 1024  # silhouette tile side (px)
+
+
 class Renderer:
     """Renders one mesh through one camera; all renderers share the process's GL context."""
 
     def __init__(self, camera, mesh: Mesh, *, tile: int = 64, max_batch: int = 512, margin: float = 0.1):
-        if not 8 <= tile <= 1024 or max_batch < 1 or mesh.triangle_count == 0 or not 0 <= margin < np.inf:
+        if not MIN_TILE <= tile <= MAX_TILE or max_batch < 1 or mesh.triangle_count == 0 or not 0 <= margin < np.inf:
             raise ValueError(f"invalid renderer settings: tile={tile}, max_batch={max_batch}, margin={margin}")
         self.width, self.height = int(camera.width), int(camera.height)
         self.K = np.array(camera.K, dtype=float)
@@ -51,15 +54,12 @@ class Renderer:
         self.cull = mesh.is_closed
         self._hull = _hull_points(mesh.vertices)
 
-        # Tile atlas: a power-of-two number of columns (exact NDC offsets), rows as needed.
-        self._cols = 1 << int(np.ceil(np.log2(np.sqrt(self.max_batch))))
-        rows = -(-self.max_batch // self._cols)
-        aw, ah = self._cols * self.tile, rows * self.tile
+        self._cols, (aw, ah) = atlas_layout(self.tile, self.max_batch)
         size = (self.width, self.height)
         ctx = self.ctx = gl_context()
         # Checked before any GL object exists: a refused renderer leaves nothing to release.
-        _check_target_size(ctx, "silhouette atlas", (aw, ah),
-                           f"lower max_batch ({self.max_batch}: the particles per draw) or tile ({self.tile})")
+        check_atlas(ctx, self.tile, self.max_batch,
+                    f"lower max_batch ({self.max_batch}: the particles per draw) or tile ({self.tile})")
         _check_target_size(ctx, "image", size, "use a smaller camera resolution", texture=True)
         self._msaa: dict[int, moderngl.Framebuffer] = {}
         try:
@@ -258,6 +258,18 @@ class Renderer:
                 depth_attachment=self.ctx.depth_renderbuffer(size, samples=s),
             )
         return self._msaa[samples]
+
+
+def atlas_layout(tile: int, max_batch: int) -> tuple[int, tuple[int, int]]:
+    """The silhouette atlas of ``max_batch`` tiles: a power-of-two number of columns (exact NDC
+    offsets), rows as needed; returns ``(columns, (width, height))`` in pixels."""
+    cols = 1 << int(np.ceil(np.log2(np.sqrt(max_batch))))
+    return cols, (cols * tile, -(-max_batch // cols) * tile)
+
+
+def check_atlas(ctx: moderngl.Context, tile: int, max_batch: int, fix: str) -> None:
+    """Refuse (ValueError, advising ``fix``) an atlas of ``max_batch`` tiles that ``ctx`` cannot draw."""
+    _check_target_size(ctx, "silhouette atlas", atlas_layout(tile, max_batch)[1], fix)
 
 
 def _check_target_size(ctx: moderngl.Context, what: str, size: tuple[int, int], fix: str, *, texture: bool = False):

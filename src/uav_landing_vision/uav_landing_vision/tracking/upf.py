@@ -50,6 +50,7 @@ from scipy.spatial.transform import Rotation
 
 from ..filters.motion import MotionFilterConfig
 from ..geometry import geodesic_angle, omega_quat, quat_multiply, quat_normalise
+from ..render.renderer import MAX_TILE
 from .likelihood import LIKELIHOODS, ColourConfig, make_likelihood
 from .motion_bank import MotionBank
 from .optimisation import OPTIMISERS, PFOConfig, evaluate, make_optimiser
@@ -129,12 +130,17 @@ class TrackerConfig:
             raise ValueError(f"resampling must be one of {sorted(RESAMPLERS)}, got {self.resampling!r}")
         if self.optimiser not in OPTIMISERS:
             raise ValueError(f"optimiser must be one of {sorted(OPTIMISERS)}, got {self.optimiser!r}")
-        floors = (self.covariance_floor_m, *self.covariance_floor_deg, *self.covariance_range_fraction,
-                  self.covariance_coast_fraction, self.covariance_coast_deg)
         if not (isinstance(self.seed, (int, np.integer)) and self.seed >= 0):
             raise ValueError(f"seed must be a non-negative integer, got {self.seed!r}")
-        if self.tile < 16 or not all(f >= 0 for f in floors):
-            raise ValueError("need tile >= 16 and non-negative covariance floors, range fractions and coasting terms")
+        if not 16 <= self.tile <= MAX_TILE:
+            raise ValueError(f"tile must be 16 to {MAX_TILE} px, got {self.tile!r}")
+        # Bounded above as well: the published covariance must stay a usable float32 (MAVLink).
+        for names, high in ((("covariance_floor_m",), 1e3), (("covariance_floor_deg", "covariance_coast_deg"), 180.0),
+                            (("covariance_range_fraction", "covariance_coast_fraction"), 1.0)):
+            for name in names:
+                values = np.atleast_1d(np.asarray(getattr(self, name), float))
+                if not np.all((values >= 0) & (values <= high)):
+                    raise ValueError(f"{name} must be within 0 to {high:g}, got {getattr(self, name)!r}")
         bands = np.asarray(self.covariance_bands_m, float)
         per_band = {len(self.covariance_floor_deg), len(self.covariance_range_fraction)}
         if per_band != {len(bands) + 1} or not (np.all(bands > 0) and np.all(np.diff(bands) > 0)):
