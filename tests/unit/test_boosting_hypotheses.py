@@ -154,7 +154,10 @@ def test_generator_counts_and_errors(camera):
                                     {"kept": -1}, {"aspect_weight": 0.0}, {"roi_margin": -0.1},
                                     {"roi_pad_px": -1.0}, {"min_roi_cover": -0.1}, {"min_roi_cover": 1.5},
                                     {"roi_margin": np.inf}, {"roi_pad_px": np.inf}, {"roi_margin": np.nan},
-                                    {"particles": 10.5, "kept": 3}, {"kept": 2.5}, {"particles": True, "kept": 0}])
+                                    {"particles": 10.5, "kept": 3}, {"kept": 2.5}, {"particles": True, "kept": 0},
+                                    # passed before, then crashed on the first box (ROI of infinite size;
+                                    # the index's distances overflowing to "no neighbour" indices)
+                                    {"roi_margin": 1e306}, {"roi_pad_px": 1e306}, {"aspect_weight": 1e300}])
 def test_hypothesis_config_validation(kwargs):
     with pytest.raises(ValueError):
         HypothesisConfig(**kwargs)

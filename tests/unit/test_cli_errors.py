@@ -213,8 +213,8 @@ def test_evaluation_commands_name_the_option_of_a_bad_number(tmp_path, monkeypat
              r"distances must be finite and positive, got \(5.0, inf\)"),
             (["eval-boosting", "--seed", "-1"], "seed must be non-negative, got -1"),
             (["eval-boosting", "--distances", "nan"], r"distances must be finite and positive, got \(nan,\)"),
-            (["eval-boosting", "--aspect-weight", "0"], "aspect_weight must be finite and positive, got 0.0"),
-            (["eval-boosting", "--aspect-weight", "nan"], "aspect_weight must be finite and positive, got nan"),
+            (["eval-boosting", "--aspect-weight", "0"], "aspect_weight must be positive and at most 10000, got 0.0"),
+            (["eval-boosting", "--aspect-weight", "nan"], "aspect_weight must be positive and at most 10000, got nan"),
             (["build-database", "--out", str(tmp_path / "db.npz"), "--seed", "-1"],
              "--seed must be non-negative, got -1")):
         _refused(argv, message)

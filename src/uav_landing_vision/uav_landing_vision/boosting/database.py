@@ -25,6 +25,7 @@ from .obb import THETA_PERIOD_DEG, aspect_ratio, obb_from_mask
 
 FORMAT_VERSION = 1
 ASPECT_WEIGHT = 10.0
+MAX_ASPECT_WEIGHT = 1e4  # larger, and the index's distances may overflow (the thesis weighs 1)
 DEFAULT_FILE = "pose_database.npz"
 
 # Body axes in the optical frame: nose (x) → −z_cam, left wing (y) → +x_cam, up (z) → −y_cam.
@@ -65,6 +66,13 @@ def sample_orientations(count: int, half_range_deg, rng: np.random.Generator) ->
     return q * np.where(q[:, 3:] < 0, -1.0, 1.0)
 
 
+def check_aspect_weight(weight) -> float:
+    """(4.4)'s weight of the aspect ratio, as a float; ValueError unless in (0, MAX_ASPECT_WEIGHT]."""
+    if not 0 < weight <= MAX_ASPECT_WEIGHT:
+        raise ValueError(f"aspect_weight must be positive and at most {MAX_ASPECT_WEIGHT:g}, got {weight}")
+    return float(weight)
+
+
 def obb_distance(theta, aspect, theta_ref, aspect_ref, aspect_weight: float = 1.0):
     """Box distance (4.4): sqrt(Δθ² + (λ·ΔR)²), θ in degrees with Δθ wrapped to ±90° (period 180°);
     λ = 1 is the thesis's formula."""
@@ -102,9 +110,7 @@ class PoseDatabase:
         self.model = str(model)
         self.half_range_deg = tuple(float(a) for a in half_range_deg)
         self.command = str(command)
-        if not aspect_weight > 0:
-            raise ValueError(f"aspect_weight must be positive, got {aspect_weight}")
-        self.aspect_weight = float(aspect_weight)
+        self.aspect_weight = check_aspect_weight(aspect_weight)
         theta = np.mod(self.obbs[:, 0].astype(float), THETA_PERIOD_DEG)
         theta[theta >= THETA_PERIOD_DEG] = 0.0
         self._tree = cKDTree(

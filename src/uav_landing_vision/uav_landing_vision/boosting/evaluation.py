@@ -18,7 +18,7 @@ import numpy as np
 from ..camera import CameraModel
 from ..evaluation.statistics import ROW_NAMES, STAT_KEYS, error_statistics
 from ..geometry import euler_error, geodesic_angle
-from .database import ASPECT_WEIGHT, PoseDatabase, sample_orientations
+from .database import ASPECT_WEIGHT, PoseDatabase, check_aspect_weight, sample_orientations
 from .hypotheses import HypothesisConfig, hypotheses_from_obb
 from .obb import FastConfig, obb_from_frame
 
@@ -57,8 +57,7 @@ class BoostingEvalConfig:
         check_distances(self.distances)
         if self.seed < 0:
             raise ValueError(f"seed must be non-negative, got {self.seed}")
-        if not 0 < self.aspect_weight < np.inf:
-            raise ValueError(f"aspect_weight must be finite and positive, got {self.aspect_weight}")
+        check_aspect_weight(self.aspect_weight)
 
 
 def normal_backgrounds(camera: CameraModel, count: int, seed: int):

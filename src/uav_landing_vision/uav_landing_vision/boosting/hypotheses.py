@@ -17,10 +17,13 @@ import numpy as np
 
 from ..camera import CameraModel
 from ..geometry.quaternion import quat_multiply
-from .database import ASPECT_WEIGHT, DEFAULT_FILE, PoseDatabase
+from .database import ASPECT_WEIGHT, DEFAULT_FILE, PoseDatabase, check_aspect_weight
 from .obb import THETA_PERIOD_DEG, FastConfig, Obb, check_roi, obb_from_frame
 
 FAST_RADIUS_PX = 3  # FAST's ring: no corner is found closer than this to the image's edge
+
+
+MAX_ROI_MARGIN, MAX_ROI_PAD_PX = 10.0, 1e4  # an ROI grown more covers any frame
 
 
 @dataclass(frozen=True)
@@ -60,14 +63,14 @@ class HypothesisConfig:
     def __post_init__(self):
         if not 0.0 <= self.min_roi_cover <= 1.0:
             raise ValueError(f"min_roi_cover must be in [0, 1], got {self.min_roi_cover}")
-        if not all(np.isfinite(v) and v >= 0 for v in (self.roi_margin, self.roi_pad_px)):
-            raise ValueError(f"roi_margin and roi_pad_px must be finite and non-negative, got {self.roi_margin}, {self.roi_pad_px}")
+        if not (0 <= self.roi_margin <= MAX_ROI_MARGIN and 0 <= self.roi_pad_px <= MAX_ROI_PAD_PX):
+            raise ValueError(f"roi_margin and roi_pad_px must be within 0 to {MAX_ROI_MARGIN:g} and 0 to "
+                             f"{MAX_ROI_PAD_PX:g} px, got {self.roi_margin}, {self.roi_pad_px}")
         if not all(isinstance(n, (int, np.integer)) and not isinstance(n, bool) for n in (self.particles, self.kept)):
             raise ValueError(f"particles M and kept M0 must be integers, got {self.particles!r}, {self.kept!r}")
         if self.particles < 1 or not 0 <= self.kept < self.particles:
             raise ValueError(f"need particles M >= 1 and 0 <= kept M0 < M, got M={self.particles}, M0={self.kept}")
-        if not self.aspect_weight > 0:
-            raise ValueError(f"aspect_weight must be positive, got {self.aspect_weight}")
+        check_aspect_weight(self.aspect_weight)
 
     def count(self, first_frame: bool) -> int:
         """M at the first frame, M − M0 afterwards."""
