@@ -191,6 +191,17 @@ def test_absurd_errors_are_left_out_of_the_plots(tmp_path):
     assert (tmp_path / "t.png").stat().st_size > 0
 
 
+def test_a_name_with_dollar_signs_is_drawn_as_written(tmp_path):
+    """A variant named ``a$\\bad$`` (the evaluator's free-text parameter) failed as TeX in the
+    legend, and the evaluator lost its report; a bag so named failed eval-detector's curve."""
+    from uav_landing_vision.detection.evaluation import plot_pr
+
+    err = {"a$\\bad$": {col: np.array([0.5, 1.0]) for col in TRANSLATION_COLUMNS}}
+    plot_errors(tmp_path / "t.png", err, TRANSLATION_COLUMNS, "m")
+    plot_pr({"curve": {"recall": [0.0, 1.0], "precision": [1.0, 0.5]}, "ap50": 0.75}, tmp_path / "pr.png", "b$\\x$")
+    assert (tmp_path / "t.png").stat().st_size > 0 and (tmp_path / "pr.png").stat().st_size > 0
+
+
 def test_median_errors_by_depth_hand_made():
     depth = np.array([5.0, 6.0, 7.0, 20.0, 25.0, 70.0])
     a = {"euclidean": np.array([0.1, 0.3, 0.2, 1.0, np.nan, 4.0]),

@@ -16,6 +16,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ..evaluation.report import plot_text
 from .dataset import LABEL_BOXES, oriented_box_tie, outline_roi, projected_outline
 from .detector import box_iou
 
@@ -133,7 +134,7 @@ def plot_pr(result: dict, path, title: str) -> None:
     fig, ax = plt.subplots(figsize=(5, 4.5))
     ax.plot(result["curve"]["recall"], result["curve"]["precision"], lw=1.5)
     ax.set(xlim=(0, 1.01), ylim=(0, 1.01), xlabel="recall", ylabel="precision",
-           title=f"{title}  AP50 = {result['ap50']:.3f}")
+           title=f"{plot_text(title)}  AP50 = {result['ap50']:.3f}")
     ax.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=120)

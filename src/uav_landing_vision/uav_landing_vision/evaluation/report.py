@@ -95,6 +95,12 @@ def write_table_csv(path, stats_by_column: dict[str, dict]) -> None:
             out.writerow([ROW_NAMES[key], *(repr(stats_by_column[n][key]) for n in stats_by_column)])
 
 
+def plot_text(text: str) -> str:
+    """``text`` drawn as written: matplotlib reads a span between two ``$`` as TeX, and an
+    unknown command in a user's name (a variant, a bag) made the figure, and the report, fail."""
+    return str(text).replace("$", r"\$")
+
+
 def plot_errors(path, errors_by_variant: dict[str, dict[str, np.ndarray]], columns, unit: str) -> None:
     """Error vs. frame, one panel per axis, one line per variant (thesis Figs. 6.24–6.25)."""
     import matplotlib
@@ -108,7 +114,7 @@ def plot_errors(path, errors_by_variant: dict[str, dict[str, np.ndarray]], colum
         for name, err in errors_by_variant.items():
             beyond = np.abs(err[col]) > PLOT_LIMIT  # matplotlib cannot lay out axes out to ~1e308
             off_chart += int(beyond.sum())
-            ax.plot(np.arange(len(err[col])), np.where(beyond, np.nan, err[col]), lw=0.9, label=name)
+            ax.plot(np.arange(len(err[col])), np.where(beyond, np.nan, err[col]), lw=0.9, label=plot_text(name))
         ax.set_title(AXIS_LABELS[col] + (f" ({off_chart} beyond ±{PLOT_LIMIT:g} not drawn)" if off_chart else ""))
         ax.set_xlabel("frame")
         ax.set_ylabel(f"error [{unit}]")
@@ -194,13 +200,14 @@ def write_report(out_dir, sequence: str, errors_by_variant: dict[str, dict[str, 
     (e.g. a coverage table) ends ``tables.txt``. Returns the text of ``tables.txt``."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    parts = []
-    for kind, columns, unit in (("translation", TRANSLATION_COLUMNS, "m"), ("rotation", ROTATION_COLUMNS, "deg")):
+    parts, kinds = [], (("translation", TRANSLATION_COLUMNS, "m"), ("rotation", ROTATION_COLUMNS, "deg"))
+    for kind, columns, unit in kinds:
         table = statistics_table(errors_by_variant, columns)
         parts.append(format_table(table, f"{sequence}: {kind} error ({unit})"))
         write_table_csv(out / f"{kind}_error.csv", table)
-        plot_errors(out / f"{kind}_error.png", errors_by_variant, columns, unit)
     parts.append(frames_scored(errors_by_variant))
     text = "\n\n".join(parts + ([appendix] if appendix else []))
     (out / "tables.txt").write_text(text + "\n")
+    for kind, columns, unit in kinds:  # last: a figure that fails loses no table
+        plot_errors(out / f"{kind}_error.png", errors_by_variant, columns, unit)
     return text

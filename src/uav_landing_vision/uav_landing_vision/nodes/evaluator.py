@@ -159,9 +159,10 @@ class EvaluatorNode(LandingNode):
                         f"{' ...' if len(stamps) > 5 else ''}")
             self.get_logger().warn(unscored)
             appendix = f"{appendix}\n\n{unscored}"
-        text = write_report(out, cfg.sequence, {cfg.variant: errors}, appendix=appendix)
-        save_summary(out / "summary.json", make_summary(cfg.sequence, len(truth.stamps_ns), {cfg.variant: variant_summary(errors)}))
+        out.mkdir(parents=True, exist_ok=True)  # the poses and figures first, the plots last
         write_pose_csv(out / "estimates.csv", estimates)
+        save_summary(out / "summary.json", make_summary(cfg.sequence, len(truth.stamps_ns), {cfg.variant: variant_summary(errors)}))
+        text = write_report(out, cfg.sequence, {cfg.variant: errors}, appendix=appendix)
         matched = int(np.isfinite(errors["euclidean"]).sum())
         self.counters["matched"] = matched
         self.report_dir = out
