@@ -385,7 +385,9 @@ def mav_parse(data: bytes) -> list:
         ({}, "missing 6 required positional arguments: 'camera'"),
         ({"cli_args": ["--ros-args", "--params-file", str(PARAMS)], "parameter_overrides": [Parameter("mavlink.rate_hz", value="fast")]}, "mavlink.rate_hz: expected a number"),
         ({"cli_args": ["--ros-args", "--params-file", str(PARAMS)], "parameter_overrides": [Parameter("cone.colour", value=1)]}, r"cone: unknown key\(s\) \['colour'\]"),
-        ({"cli_args": ["--ros-args", "--params-file", str(PARAMS)], "parameter_overrides": [Parameter("mavlink.connection", value="tcp:127.0.0.1")]}, "mavlink: cannot open 'tcp:127.0.0.1'"),
+        ({"cli_args": ["--ros-args", "--params-file", str(PARAMS)], "parameter_overrides": [Parameter("mavlink.connection", value="tcp:127.0.0.1")]}, "mavlink.connection: cannot open 'tcp:127.0.0.1'"),
+        # Reported as the link's failure before.
+        ({"cli_args": ["--ros-args", "--params-file", str(PARAMS)], "parameter_overrides": [Parameter("mavlink.signing_key_file", value="/nonexistent/key")]}, "mavlink.signing_key_file: .*No such file"),
     ],
 )
 def test_bad_parameters_fail_start_up(ros, kwargs, message):
@@ -398,6 +400,6 @@ def test_a_signing_timestamp_file_out_of_reach_fails_start_up(ros, tmp_path):
     key.write_text("ab" * 32)
     overrides = [Parameter("mavlink.signing_key_file", value=str(key)),
                  Parameter("mavlink.signing_timestamp_file", value=str(tmp_path / "missing" / "t"))]
-    with pytest.raises(ConfigError, match=r"signing timestamp file .*/missing/t: cannot write it"):
+    with pytest.raises(ConfigError, match=r"mavlink.signing_timestamp_file: .*signing timestamp file .*/missing/t: cannot write it"):
         GcsBridgeNode(context=ros.context, cli_args=["--ros-args", "--params-file", str(PARAMS)],
                       parameter_overrides=overrides)

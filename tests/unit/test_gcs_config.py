@@ -66,6 +66,8 @@ def edit(path: str, value):
         ("camera.position_m", [0.0, 1.0], "expected 3 values"),
         ("camera.frame_id", " ", "camera.frame_id must not be empty"),
         ("net_position_m", [0.0, math.nan, 0.0], "finite"),
+        ("net_position_m", [1e39, 0.0, 0.0], "within 1000 m"),  # every pose was refused (float32)
+        ("camera.position_m", [0.0, -2000.0, 0.0], "within 1000 m"),
         ("cone.alpha2_deg", 7.0, "alpha2_deg < glide_slope_deg"),
         ("cone.beta2_deg", 180.0, "beta2_deg"),
         ("cone.no_return_distance_m", 60.0, "no_return_distance_m < distance_m"),

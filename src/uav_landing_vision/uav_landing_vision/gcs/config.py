@@ -103,6 +103,9 @@ class MavlinkConfig:
         return self.signing_timestamp_file or self.signing_key_file + ".timestamp"
 
 
+MAX_SHIP_OFFSET_M = 1e3  # camera and net lie on the ship (beyond float32, every pose was refused)
+
+
 @dataclass(frozen=True)
 class GcsBridgeConfig:
     camera: CameraMountConfig
@@ -115,6 +118,9 @@ class GcsBridgeConfig:
     def __post_init__(self):
         if not all(math.isfinite(v) for v in (*self.camera.position_m, *self.camera.rpy_deg, *self.net_position_m)):
             raise ValueError("camera and net positions and angles must be finite")
+        if max(map(abs, (*self.camera.position_m, *self.net_position_m))) > MAX_SHIP_OFFSET_M:
+            raise ValueError(f"camera and net positions must lie within {MAX_SHIP_OFFSET_M:g} m of the ship frame's "
+                             f"origin, got {self.camera.position_m} and {self.net_position_m}")
         worst_delay = self.stale_timeout_s + 1.0 / self.mavlink.rate_hz  # staleness + one tick
         if not (self.stale_timeout_s > 0.0 and worst_delay <= GO_AROUND_DEADLINE_S):
             raise ValueError(

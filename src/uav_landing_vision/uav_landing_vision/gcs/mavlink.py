@@ -121,10 +121,20 @@ class MavlinkSender:
     clock is behind the GCS's is then accepted once it has heard the GCS."""
 
     def __init__(self, cfg: MavlinkConfig, clock: Callable[[], float] = time.time):
-        key = load_signing_key(cfg.signing_key_file) if cfg.signing_key_file else None
+        # Each failure is a ValueError naming the parameter behind it.
+        try:
+            key = load_signing_key(cfg.signing_key_file) if cfg.signing_key_file else None
+        except (OSError, ValueError) as exc:
+            raise ValueError(f"mavlink.signing_key_file: {exc}") from exc
         self._cfg = cfg
-        self._stamps = SigningTimestamps(cfg.signing_timestamp_path, clock) if key is not None else None
-        self.link = open_transport(cfg.connection)
+        try:
+            self._stamps = SigningTimestamps(cfg.signing_timestamp_path, clock) if key is not None else None
+        except (OSError, ValueError) as exc:
+            raise ValueError(f"mavlink.signing_timestamp_file: {exc}") from exc
+        try:
+            self.link = open_transport(cfg.connection)
+        except (OSError, ValueError) as exc:
+            raise ValueError(f"mavlink.connection: cannot open '{cfg.connection}': {exc}") from exc
         start = self._stamps.start if self._stamps is not None else None
         self.mav = encoder(self.link, cfg.system_id, cfg.component_id, key, cfg.signing_link_id, start)
         self._inbound = None  # parses what the GCS sends, for the stamps of its signed frames

@@ -53,7 +53,7 @@ class GcsBridgeNode(LandingNode):
         try:
             self._bridge = GcsBridge(self.config)
         except (OSError, ValueError) as exc:
-            raise ConfigError(f"mavlink: cannot open '{self.config.mavlink.connection}': {exc}") from exc
+            raise ConfigError(f"gcs_bridge parameters: {exc}") from exc
         self._guidance = self.create_publisher(LandingGuidance, "uav/landing_guidance", RELIABLE_QOS)
         self._inputs = (
             self.create_subscription(PoseWithCovarianceStamped, "uav/pose", self._on_pose, RELIABLE_QOS),
