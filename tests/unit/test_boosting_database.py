@@ -169,10 +169,14 @@ def test_truncated_or_damaged_files_are_clear_errors(tmp_path, synthetic):
 def test_missing_corrupt_or_mismatched_files_are_clear_errors(tmp_path, camera, synthetic):
     with pytest.raises(DatabaseError, match="not found"):
         PoseDatabase.load(tmp_path / "none.npz")
+    with pytest.raises(DatabaseError, match="is a folder, not a file"):
+        PoseDatabase.load(tmp_path)
     bad = tmp_path / "bad.npz"
-    bad.write_bytes(b"not a zip file")
-    with pytest.raises(DatabaseError, match="corrupt"):
-        PoseDatabase.load(bad)
+    for junk in (b"not a zip file", b"\x93NUMPY" + bytes(120), b"\x80\x04K\x01."):  # numpy advised unpickling the last
+        bad.write_bytes(junk)
+        with pytest.raises(DatabaseError, match="corrupt") as error:
+            PoseDatabase.load(bad)
+        assert "pickle" not in str(error.value)
     path = synthetic.save(tmp_path / "ok.npz")
     other = CameraModel(camera.width, camera.height, [[900.0, 0, 640], [0, 900.0, 360], [0, 0, 1]])
     with pytest.raises(DatabaseError, match="camera"):

@@ -181,6 +181,13 @@ def test_config_refuses_a_search_window_growth_that_is_not_finite(grow):
         DetectorConfig(window_grow=grow)
 
 
+@pytest.mark.parametrize("threads", [0, 2**31])
+def test_config_refuses_a_thread_count_onnxruntime_cannot_take(threads):
+    """2**31 passed, then failed in onnxruntime's options as if the model could not be loaded."""
+    with pytest.raises(ValueError, match="threads"):
+        DetectorConfig(threads=threads)
+
+
 def test_a_file_that_is_not_an_onnx_model_is_a_clear_error(tmp_path):
     from uav_landing_vision.detection.verifier import BoxVerifier
 

@@ -13,6 +13,7 @@ depth error at 5 m from 0.48 to 0.37 m (MAE, 10 hypotheses, see ``models/README.
 
 import hashlib
 import sys
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -179,7 +180,11 @@ class PoseDatabase:
         """Read a database; with ``camera``/``mesh`` also check it was made for them."""
         path = Path(path)
         if not path.is_file():
-            raise DatabaseError(f"pose database {path} not found; make it with `uav-landing build-database`")
+            what = "is a folder, not a file" if path.is_dir() else "not found"
+            raise DatabaseError(f"pose database {path} {what}; make it with `uav-landing build-database`")
+        if not zipfile.is_zipfile(path):  # np.load would advise unpickling it
+            raise DatabaseError(f"pose database {path} is corrupt or not an .npz file; "
+                                "make it with `uav-landing build-database`")
         try:
             with np.load(path, allow_pickle=False) as z:
                 version = int(z["format_version"])

@@ -19,6 +19,7 @@ import numpy as np
 MAX_LOG_SIZE = 6.0  # = network.MAX_LOG_SIZE (the runtime does not import torch)
 PAD_VALUE = 114
 DEFAULT_MODEL = "detector.onnx"
+MAX_THREADS = 256  # onnxruntime intra-op threads; more than a ship PC has cores
 
 
 @dataclass(frozen=True)
@@ -45,8 +46,8 @@ class DetectorConfig:
             raise ValueError("verifier_threshold must be in [0, 1)")
         if not (np.isfinite(self.window_grow) and self.window_grow >= 1.0):
             raise ValueError(f"window_grow must be finite and ≥ 1, got {self.window_grow}")
-        if self.max_detections < 1 or self.threads < 1 or self.window_min_px < 32:
-            raise ValueError("need max_detections ≥ 1, threads ≥ 1, window_min_px ≥ 32")
+        if self.max_detections < 1 or not 1 <= self.threads <= MAX_THREADS or self.window_min_px < 32:
+            raise ValueError(f"need max_detections ≥ 1, 1 ≤ threads ≤ {MAX_THREADS}, window_min_px ≥ 32")
 
 
 class Detections(NamedTuple):

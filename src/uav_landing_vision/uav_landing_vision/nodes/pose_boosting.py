@@ -176,8 +176,10 @@ def _usable_roi(det, width: int, height: int) -> tuple[int, int, int, int]:
 def _load_database(config: HypothesisConfig) -> PoseDatabase:
     try:
         return PoseDatabase.load(model_file(config.database), aspect_weight=config.aspect_weight)
-    except (FileNotFoundError, DatabaseError) as exc:
+    except FileNotFoundError as exc:
         raise ConfigError(f"database: {exc}; make it with `uav-landing build-database --camera <camera_info YAML>`") from exc
+    except DatabaseError as exc:  # its message says what to do
+        raise ConfigError(f"database: {exc}") from exc
 
 
 def main(args=None) -> int:
