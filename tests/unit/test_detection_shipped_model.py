@@ -92,5 +92,7 @@ def test_a_search_window_that_cuts_the_uav_gives_no_cut_box(detector):
     whole = detector.detect(frame)
     assert len(whole.scores) and whole.boxes[0, 0] <= x + 8 and whole.boxes[0, 2] >= x + w - 8  # all of it
     assert len(detector.detect(frame, window=(x + w // 2, y - 100, 300, 300)).scores) == 0  # cut in half
+    assert len(detector.detect(frame, window=(x + w // 2 - 300, y - 100, 300, 300)).scores) == 0  # on the right
+    assert len(detector.detect(frame, window=(x - 100, y + h // 2 - 250, w + 200, 250)).scores) == 0  # at the bottom
     inside = detector.detect(frame, window=(x - 100, y - 100, w + 200, 250))
     np.testing.assert_allclose(inside.boxes[0], whole.boxes[0], atol=8.0)  # the window holds it: found

@@ -20,13 +20,14 @@ def test_translation_ukf_equals_filterpy(params):
     ukf = TranslationUKF(DT, q, r, params)
     pos, vel = rng.normal(0, 10, (m, 3)), rng.normal(0, 2, (m, 3))
     state = ukf.init(pos, vel, p0)
+    f = np.block([[np.eye(3), DT * np.eye(3)], [np.zeros((3, 3)), np.eye(3)]])  # constant velocity (A.1)
     refs = []
     for i in range(m):
         pts = MerweScaledSigmaPoints(6, alpha=params.alpha, beta=params.beta, kappa=params.kappa)
-        ref = UnscentedKalmanFilter(6, 3, DT, hx=lambda x: x[:3], fx=lambda x, dt: ukf.f @ x, points=pts)
+        ref = UnscentedKalmanFilter(6, 3, DT, hx=lambda x: x[:3], fx=lambda x, dt: f @ x, points=pts)
         ref.x, ref.P = np.r_[pos[i], vel[i]], p0.copy()
         # (A.12) puts Q into the sigma points before the model, filterpy adds it after: F Q Fᵀ.
-        ref.Q, ref.R = ukf.f @ q @ ukf.f.T, r
+        ref.Q, ref.R = f @ q @ f.T, r
         refs.append(ref)
     for _ in range(20):
         z = rng.normal(0, 10, (m, 3))

@@ -41,12 +41,14 @@ def test_refinement_climbs_towards_the_peak_at_the_given_position():
         np.testing.assert_array_equal(pos, np.tile(POS, (len(pos), 1)))
 
 
-def test_refinement_keeps_a_rotation_that_nothing_beats():
+@pytest.mark.parametrize("sigma_deg", [(4.0,), (3.0, 3.0)])
+def test_refinement_keeps_a_rotation_that_nothing_beats(sigma_deg):
+    """Also over stages: a later stage's best replaces the rotation only when it scores higher."""
     score = PeakAt(TARGET)
-    quat, best = RotationRefinement(RotationRefinementConfig(candidates=32)).refine(
+    quat, best = RotationRefinement(RotationRefinementConfig(candidates=32, sigma_deg=sigma_deg)).refine(
         score, POS, TARGET, np.random.default_rng(1))
     np.testing.assert_allclose(quat, TARGET, atol=1e-15)
-    assert best == pytest.approx(1.0) and score.calls == 1
+    assert best == pytest.approx(1.0) and score.calls == len(sigma_deg)
 
 
 def test_refinement_off_draws_and_scores_nothing():

@@ -233,8 +233,8 @@ def test_a_lost_track_still_refuses_a_frame_not_after_the_last(renderer, frame):
 def test_prediction_steps_are_the_stamp_gap_in_whole_dt():
     dt_ns = 34_000_000
     assert prediction_steps(None, 0.034) == 1  # the first frame
-    assert [prediction_steps(g, 0.034) for g in (1, dt_ns - 1, dt_ns, dt_ns + 1, 3 * dt_ns, int(2.4 * dt_ns))] == [
-        1, 1, 1, 1, 3, 2]
+    gaps = (1, dt_ns - 1, dt_ns, dt_ns + 1, 3 * dt_ns, int(2.4 * dt_ns), int(2.6 * dt_ns), int(1.5 * dt_ns) + 1)
+    assert [prediction_steps(g, 0.034) for g in gaps] == [1, 1, 1, 1, 3, 2, 3, 2]  # rounded, not cut
     assert prediction_steps(10**18, 0.034) == MAX_PREDICTION_STEPS  # a clock jump costs a bounded prediction
 
 
