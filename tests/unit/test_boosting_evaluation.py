@@ -69,6 +69,10 @@ def test_tiny_run_has_the_json_schema(tmp_path, camera):
     for per_k in stats.values():  # statistics of the four samples, not of none
         for c in per_k.values():
             assert all(np.isfinite(v) for part in c.values() for axis in part.values() for v in axis.values())
+    for distance, per_k in stats.items():  # errors, not poses: the depth is found to a fraction of the range
+        for c in per_k.values():
+            assert abs(c["translation_m"]["z"]["median"]) < 0.4 * float(distance)
+            assert max(c["translation_m"][a]["mae"] for a in "xy") < 0.1 * float(distance)
     text = format_tables(result)
     assert "Rotation error (degrees) at 15 m" in text
     header, first = text.splitlines()[2], text.splitlines()[3]  # each k label ends over its column

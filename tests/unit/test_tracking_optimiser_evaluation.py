@@ -31,6 +31,18 @@ def test_every_method_has_the_tables_rows_per_distance_and_axis(result):
     assert "Pose optimisation schemes rotation error (degrees) at 20 m" in text and "Mod. PSO" not in text
 
 
+def test_the_tables_hold_each_methods_own_errors(result):
+    """Errors of each method's own estimate, not of the boosted start nor the pose itself: the
+    depth is found to a fraction of the range, and the optimisers move away from the start."""
+    for distance, per_method in result["stats"].items():
+        for cell in per_method.values():
+            assert abs(cell["translation_m"]["z"]["median"]) < 0.4 * float(distance)
+            assert max(cell["translation_m"][a]["mae"] for a in "xy") < 0.1 * float(distance)
+        for part in ("translation_m", "rotation_deg"):
+            start = json.dumps(per_method["boosting"][part], sort_keys=True)
+            assert any(json.dumps(per_method[m][part], sort_keys=True) != start for m in ("pfo", "pso", "gabf"))
+
+
 def test_the_swarm_and_gabf_keep_their_best_so_they_never_end_below_the_boosted_start(result):
     """PSO returns each particle's best pose and GAbF its elite: their estimate scores at least the
     most likely hypothesis they started from (PFO, without elitism as in the thesis, may not)."""
