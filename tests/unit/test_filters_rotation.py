@@ -240,6 +240,22 @@ def test_fused_angular_velocity_equals_filterpy_kalman_update():
     np.testing.assert_allclose(cov[0], ref.P, atol=1e-12)
 
 
+def test_ubif_measures_omega_with_the_noise_of_both_estimates_it_differences():
+    """(5.4)–(5.6) difference two estimates Δt apart, so the measured ω's noise is the sum of
+    their rotation covariances over Δt² (ours, see ubif.py): the update's ω covariance is then
+    filterpy's Kalman update of the predicted one with that noise."""
+    filt = make_rotation_filter(MotionFilterConfig(rotation_filter="ubif"))
+    q0 = Rotation.random(1, random_state=12)
+    start = filt.init(q0.as_quat(), np.array([[0.3, -0.2, 0.1]]))
+    predicted = filt.predict(start)
+    updated = filt.update(predicted, (q0 * Rotation.from_rotvec([0.01, 0.02, -0.01])).as_quat())
+    ref = KalmanFilter(dim_x=3, dim_z=3)
+    ref.x, ref.P, ref.H = predicted.omega[0].copy(), predicted.omega_cov[0].copy(), np.eye(3)
+    ref.R = (filt.covariance(start)[0] + filt.covariance(updated)[0]) / filt.dt**2
+    ref.update(np.zeros(3))
+    np.testing.assert_allclose(updated.omega_cov[0], ref.P, rtol=1e-9, atol=1e-12)
+
+
 def test_ubif_learns_a_constant_angular_velocity_from_its_estimates():
     """ω is not measured directly: the update infers it from successive estimates (5.4)–(5.6)."""
     omega = np.array([[0.8, -1.5, 0.4]])
