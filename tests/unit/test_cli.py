@@ -71,6 +71,7 @@ def test_graph_replaying_a_bag_through_the_whole_graph_waits_for_every_link(tmp_
     ("undistort,undistort,evaluator", 2.0, 10.0, r"node\(s\) \['undistort'\] named more than once"),
     (None, 2.0, float("nan"), "both finite"),  # Popen.wait(timeout=nan) never returned: the graph hung
     (None, float("inf"), 10.0, "both finite"),
+    ("", 2.0, 10.0, "no node to run"),  # ran every node, while ",," was refused
 ])
 def test_graph_refuses_a_repeated_node_and_timeouts_that_are_not_finite(nodes, drain, stop_timeout, message):
     """A repeated name started two processes, the second took the first's place in the graph's
@@ -84,6 +85,18 @@ def test_graph_refuses_a_repeated_node_and_timeouts_that_are_not_finite(nodes, d
                               config=config_path("tracker.yaml").parent)
     with pytest.raises(ValueError, match=message):
         _plan(args)
+
+
+@pytest.mark.parametrize("command", ["graph", "demo"])
+@pytest.mark.parametrize("value", ["-1", "233", "x"])
+def test_a_domain_id_rcl_would_not_keep_apart_is_refused(command, value, capsys):
+    """rcl takes -1 as its default domain, 0: a graph meant for a domain of its own would have
+    joined every default graph on the network."""
+    from uav_landing_vision.cli import main
+
+    with pytest.raises(SystemExit) as stop:
+        main([command, "--domain-id", value])
+    assert stop.value.code == 2 and "--domain-id" in capsys.readouterr().err
 
 
 def _bag_of(path, topics):

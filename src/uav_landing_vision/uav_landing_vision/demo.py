@@ -18,6 +18,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from .graph import domain_id
+
 ESTIMATE_COLOUR = (0, 255, 0)  # RGB
 TRUTH_COLOUR = (255, 0, 255)
 
@@ -28,7 +30,7 @@ def register(sub) -> None:
     p.add_argument("--scenario", default="normal", help="shipped scenario name or YAML (default: normal)")
     p.add_argument("--seed", type=int, help="scenario seed (default: the scenario's)")
     p.add_argument("--frames", type=int, help="first N frames of the approach only (default: all)")
-    p.add_argument("--domain-id", type=int, default=77,
+    p.add_argument("--domain-id", type=domain_id, default=77,
                    help="ROS_DOMAIN_ID of the graph, apart from other ROS graphs on the network (default: 77)")
     p.add_argument("--strip", type=int, default=6, help="frames in the overlay strip (default: 6)")
     p.set_defaults(func=_run)

@@ -18,6 +18,7 @@ on them; ``--param`` can still set either.
 This module imports no ROS module: the nodes do, in their own processes.
 """
 
+import argparse
 import json
 import math
 import os
@@ -42,6 +43,7 @@ GRAPH_NODES = (
     "bag_player",  # started last: it waits for its subscribers, then plays
 )
 PLAYER = "bag_player"
+MAX_DOMAIN_ID = 232  # rcl refuses larger ROS_DOMAIN_IDs
 # Every link of the full graph. A replay that must not lose its first frames waits until each
 # has a publisher and a subscriber (bag_player ``ready_topics``): the detector and pose
 # boosting load their models for several seconds, longer than the player's settle time on a
@@ -194,7 +196,7 @@ def register(sub) -> None:
         help="remap a topic (absolute names) in every node (repeatable), e.g. a recording's "
              "/deck_cam/image_raw:=/camera/image_raw",
     )
-    p.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID of the graph (default: the environment's)")
+    p.add_argument("--domain-id", type=domain_id, help="ROS_DOMAIN_ID of the graph (default: the environment's)")
     p.add_argument("--stop-timeout", type=float, default=10.0, help="seconds a node gets to stop before it is killed (default: 10)")
     p.add_argument("--drain", type=float, default=2.0,
                    help="seconds between the end of the bag and the stop, for the last messages (default: 2)")
@@ -240,6 +242,18 @@ def parse_remaps(items) -> dict:
     return remaps
 
 
+def domain_id(text: str) -> int:
+    """A ``--domain-id`` (argparse type): 0–232, rcl's range (rcl takes -1 for its default, 0: a
+    graph meant for a private domain would have joined every default graph on the network)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if not 0 <= value <= MAX_DOMAIN_ID:
+        raise argparse.ArgumentTypeError(f"a ROS domain ID is 0 to {MAX_DOMAIN_ID}, got {value}")
+    return value
+
+
 def node_environment(domain_id: int | None = None) -> dict:
     """The environment of the node processes: this one's, unbuffered, with this package
     importable and, if given, ``ROS_DOMAIN_ID``."""
@@ -254,7 +268,7 @@ def node_environment(domain_id: int | None = None) -> dict:
 
 def _plan(args, remaps=None) -> tuple[list[str], dict]:
     """The nodes to start and the parameter overrides of each; ValueError on a bad request."""
-    names = list(GRAPH_NODES) if not args.nodes else [n.strip() for n in args.nodes.split(",") if n.strip()]
+    names = list(GRAPH_NODES) if args.nodes is None else [n.strip() for n in args.nodes.split(",") if n.strip()]
     unknown = [n for n in names if n not in GRAPH_NODES]
     if unknown:
         raise ValueError(f"unknown node(s) {unknown}; known: {list(GRAPH_NODES)}")
