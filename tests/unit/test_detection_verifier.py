@@ -83,6 +83,33 @@ def test_mining_labels_boxes_by_overlap_and_does_not_depend_on_the_processes(dat
     np.testing.assert_array_equal(cached["crops"], one["crops"])
 
 
+def test_mined_crops_are_mined_again_for_another_model_in_the_same_file_or_a_damaged_cache(datasets, tmp_path):
+    """The cache was keyed by the detector's path: a model retrained into the same file had the
+    old model's crops reused, silently; and a damaged crops.npz ended in a traceback."""
+    import shutil
+
+    from uav_landing_vision.detection.verifier_train import VerifierTrainConfig, mine_crops
+
+    folders, detector, _ = datasets
+    model = tmp_path / "det.onnx"
+    shutil.copy(detector, model)
+    cfg = VerifierTrainConfig(data=folders, detector=str(model), out=str(tmp_path / "run"), workers=1)
+    first = mine_crops(cfg, progress=False)
+    assert (first["source"] == 0).sum() > 100
+    torch.manual_seed(0)
+    blind = UavDetectorNet(width=16, blocks=(1, 1, 1)).eval()
+    with torch.no_grad():
+        for head in blind.heads:  # scores every cell σ(-20): no box at all
+            head.pred.weight.zero_()
+            head.pred.bias.copy_(torch.tensor([-20.0, 0.0, 0.0, 0.0, 0.0]))
+    export_onnx(blind, model, (192, 128))
+    again = mine_crops(cfg, progress=False)
+    assert (again["source"] == 0).sum() == 0 and (again["source"] == 1).sum() == 22  # only the jittered labels
+    crops = tmp_path / "run" / "crops.npz"
+    crops.write_bytes(crops.read_bytes()[:1000])
+    np.testing.assert_array_equal(mine_crops(cfg, progress=False)["labels"], again["labels"])
+
+
 def test_training_resumes_only_with_its_own_settings_and_exports_what_it_trained(datasets, tmp_path):
     import onnx
 

@@ -235,6 +235,7 @@ class Detector:
     def __init__(self, config: DetectorConfig = DetectorConfig()):
         self.config = config
         path, self.session = onnx_session(config.model, config.threads)
+        self.model_path = path  # the file behind config.model
         meta = self.session.get_modelmeta().custom_metadata_map
         try:
             self.strides = tuple(int(s) for s in json.loads(meta["strides"]))

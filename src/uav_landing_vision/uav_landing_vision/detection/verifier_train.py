@@ -11,8 +11,10 @@ draws from ``SeedSequence([seed, f, i])``, so the crops do not depend on the num
 processes. Every 10th image of each folder is validation, as in the detector's training.
 """
 
+import hashlib
 import json
 import time
+import zipfile
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -109,18 +111,26 @@ def mine_crops(cfg: VerifierTrainConfig, progress: bool = True) -> dict:
     from tqdm import tqdm
 
     path = Path(cfg.out) / "crops.npz"
-    if path.exists():
-        cached = np.load(path, allow_pickle=False)
-        if json.loads(str(cached["mining"])) == json.loads(json.dumps(cfg.mining())):
-            return {k: cached[k] for k in ("crops", "labels", "source", "validation")}
     # Loaded here first: a pool whose initializer fails restarts its workers for ever.
-    _mining_detector(cfg)
-    items = []
+    detector_file = _mining_detector(cfg).model_path
+    items, records = [], []
     for folder, root in enumerate(cfg.data):
         meta_path = Path(root) / "dataset.json"
         if not meta_path.is_file():
             raise FileNotFoundError(f"{root} is not a dataset made by make-detection-data (no dataset.json)")
-        items += [(folder, i) for i in range(json.loads(meta_path.read_text())["images"])]
+        records.append(json.loads(meta_path.read_text()))
+        items += [(folder, i) for i in range(records[-1]["images"])]
+    # The crops depend on the settings, and on the files behind the names: the detector's bytes
+    # and each dataset's record (a model retrained, or a dataset made again, in the same place).
+    mining = json.dumps({**cfg.mining(), "detector_sha256": hashlib.sha256(detector_file.read_bytes()).hexdigest(),
+                         "datasets": records})
+    if path.exists():
+        try:
+            with np.load(path, allow_pickle=False) as cached:
+                if json.loads(str(cached["mining"])) == json.loads(mining):
+                    return {k: cached[k] for k in ("crops", "labels", "source", "validation")}
+        except (OSError, ValueError, KeyError, zipfile.BadZipFile):  # a damaged cache is mined again
+            pass
     chunks = [items[k : k + 50] for k in range(0, len(items), 50)]
     parts = []
     with get_context("spawn").Pool(cfg.workers, _start_miner, (cfg,)) as pool, \
@@ -138,7 +148,7 @@ def mine_crops(cfg: VerifierTrainConfig, progress: bool = True) -> dict:
     }
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path.with_suffix(".tmp"), "wb") as f:
-        np.savez(f, mining=json.dumps(cfg.mining()), **mined)
+        np.savez(f, mining=mining, **mined)
     path.with_suffix(".tmp").replace(path)
     return mined
 
