@@ -164,6 +164,10 @@ def test_truncated_or_damaged_files_are_clear_errors(tmp_path, synthetic):
     np.savez(tmp_path / "v2.npz", **z)
     with pytest.raises(DatabaseError, match="format 2, expected 1"):
         PoseDatabase.load(tmp_path / "v2.npz")
+    for half_range in ([np.nan, 1.0, 1.0], [-90.0, 90.0, 90.0], [90.0, 90.0]):  # eval-boosting's sampling failed
+        np.savez(tmp_path / "range.npz", **{**z, "format_version": np.int32(1), "half_range_deg": np.array(half_range)})
+        with pytest.raises(DatabaseError, match="half_range_deg must be three angles"):
+            PoseDatabase.load(tmp_path / "range.npz")
 
 
 def test_missing_corrupt_or_mismatched_files_are_clear_errors(tmp_path, camera, synthetic):

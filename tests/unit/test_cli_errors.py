@@ -112,6 +112,14 @@ def test_score_refuses_an_empty_truth(tmp_path, bags):
     assert not (tmp_path / "s.json").exists()
 
 
+def test_score_refuses_a_stamp_beyond_64_bits(tmp_path, bags):
+    """An OverflowError traceback before."""
+    (tmp_path / "est.csv").write_text("stamp_ns,x,y,z,qx,qy,qz,qw\n99999999999999999999999,1,2,3,0,0,0,1\n")
+    _refused(["score", "--truth", str(bags / "full"), "--estimate", str(tmp_path / "est.csv"),
+              "--json", str(tmp_path / "s.json")], ".*est.csv: line 2: stamp_ns 99999999999999999999999 does not fit 64 bits")
+    assert not (tmp_path / "s.json").exists()
+
+
 def test_make_detection_data_refuses_a_missing_camera(tmp_path):
     _refused(["make-detection-data", "--out", str(tmp_path / "data"), "--count", "1", "--camera", "nosuch.yaml"],
              "config file 'nosuch.yaml' not found")

@@ -51,8 +51,15 @@ class DatabaseConfig:
             raise ValueError(f"database count must be positive, got {self.count}")
         if not (np.isfinite(self.distance) and self.distance > 0):
             raise ValueError(f"database distance must be positive and finite, got {self.distance}")
-        if len(self.half_range_deg) != 3 or not all(0 < a <= 180 for a in self.half_range_deg):
-            raise ValueError(f"half_range_deg must be three angles in (0, 180], got {self.half_range_deg}")
+        check_half_range(self.half_range_deg)
+
+
+def check_half_range(half_range_deg) -> tuple[float, float, float]:
+    """Euler half-ranges (deg) as floats; ValueError unless three angles in (0, 180]."""
+    values = np.asarray(half_range_deg, dtype=float).reshape(-1)
+    if len(values) != 3 or not all(0 < a <= 180 for a in values):
+        raise ValueError(f"half_range_deg must be three angles in (0, 180], got {half_range_deg}")
+    return tuple(float(a) for a in values)
 
 
 FULL_SPHERE_DEG = (180.0, 90.0, 180.0)
@@ -109,7 +116,10 @@ class PoseDatabase:
         self.areas = (self.obbs[:, 3] * self.obbs[:, 4]).astype(np.float32)
         self.camera = camera
         self.model = str(model)
-        self.half_range_deg = tuple(float(a) for a in half_range_deg)
+        try:
+            self.half_range_deg = check_half_range(half_range_deg)
+        except ValueError as exc:
+            raise DatabaseError(f"database {exc}") from None
         self.command = str(command)
         self.aspect_weight = check_aspect_weight(aspect_weight)
         theta = np.mod(self.obbs[:, 0].astype(float), THETA_PERIOD_DEG)

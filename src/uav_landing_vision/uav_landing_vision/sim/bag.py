@@ -257,7 +257,10 @@ def read_pose_csv(path) -> Poses:
             if any(row[c] is None for c in CSV_HEADER):
                 raise ValueError(f"{path}: line {reader.line_num} has fewer than the {len(CSV_HEADER)} columns")
             try:
-                rows.append((int(row["stamp_ns"]), *(float(row[c]) for c in CSV_HEADER[1:])))
+                stamp = int(row["stamp_ns"])
+                if not -(2**63) <= stamp < 2**63:
+                    raise ValueError(f"stamp_ns {stamp} does not fit 64 bits")
+                rows.append((stamp, *(float(row[c]) for c in CSV_HEADER[1:])))
             except ValueError as exc:
                 raise ValueError(f"{path}: line {reader.line_num}: {exc}") from None
     values = np.array([r[1:] for r in rows], float).reshape(-1, 7)
