@@ -158,6 +158,9 @@ def test_unreported_input_errors_are_one_line_and_programming_errors_are_not_hid
     monkeypatch.setattr(score, "score_files", raising(OSError("disk unreadable")))
     assert main(argv) == 1
     assert capsys.readouterr().err == "uav-landing score: disk unreadable\n"
+    monkeypatch.setattr(score, "score_files", raising(MemoryError("Unable to allocate 2.18 TiB")))
+    assert main(argv) == 1  # as eval-optimisers --samples 100000000000 did, in a traceback
+    assert capsys.readouterr().err == "uav-landing score: not enough memory for these settings (Unable to allocate 2.18 TiB)\n"
     monkeypatch.setattr(score, "score_files", raising(TypeError("a bug")))
     with pytest.raises(TypeError, match="a bug"):
         main(argv)

@@ -56,6 +56,9 @@ def main(argv=None) -> int:
     except (ValueError, OSError) as exc:  # a bad input or file that a command did not report itself
         print(f"uav-landing {args.command}: {exc}", file=sys.stderr)
         return 1  # as a command's own SystemExit(message); argparse's usage errors exit 2
+    except MemoryError as exc:  # e.g. a --count or --samples far beyond this machine
+        print(f"uav-landing {args.command}: not enough memory for these settings ({exc})", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":
