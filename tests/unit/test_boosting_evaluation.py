@@ -83,3 +83,6 @@ def test_tiny_run_has_the_json_schema(tmp_path, camera):
     written = json.loads(out.read_text())
     assert list(written["stats"]["5"]) == ["1", "2"]  # the statistics cover the samples with a box:
     assert written["samples"] == 2 and written["failures"]["5"] == 0  # how many is written with them
+    assert main(["eval-boosting", "--samples", "1", "--distances", "5", "--top", "1", "--quiet", "--json", str(out)]) == 0
+    one = json.loads(out.read_text(), parse_constant=lambda name: pytest.fail(f"{name} is not JSON"))
+    assert one["stats"]["5"]["1"]["translation_m"]["x"]["sd"] is None  # one sample has none: null, not NaN

@@ -82,9 +82,8 @@ def _build(args) -> int:
 
 
 def _evaluate(args) -> int:
-    import json
-
     from ..cli import check_output
+    from ..evaluation.report import strict_json
     from .evaluation import BoostingEvalConfig, evaluate_boosting, format_tables
 
     try:
@@ -103,6 +102,6 @@ def _evaluate(args) -> int:
     print(format_tables(result))
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps({k: result[k] for k in ("samples", "failures", "stats")}, indent=2))
+        args.json.write_text(strict_json({k: result[k] for k in ("samples", "failures", "stats")}))
         print(f"wrote {args.json}")
     return 0

@@ -9,14 +9,13 @@ whose oriented box wins over a rather different one by under 2.5 % of area) and 
 box matches that runner-up instead, with the runner-up's margin.
 """
 
-import json
 import time
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from ..evaluation.report import plot_text
+from ..evaluation.report import plot_text, strict_json
 from .dataset import LABEL_BOXES, oriented_box_tie, outline_roi, projected_outline
 from .detector import box_iou
 
@@ -189,7 +188,7 @@ def evaluate_bag(bag, config, json_path, png_path=None, progress: bool = True, t
     result.update(bag=str(bag), model=str(config.model), verifier=str(config.verifier),
                   verifier_threshold=config.verifier_threshold, truth_box=truth_box)
     Path(json_path).parent.mkdir(parents=True, exist_ok=True)
-    Path(json_path).write_text(json.dumps({k: v for k, v in result.items() if k != "curve"}, indent=2))
+    Path(json_path).write_text(strict_json({k: v for k, v in result.items() if k != "curve"}))
     if png_path:
         plot_pr(result, png_path, Path(str(bag)).name)
     return result

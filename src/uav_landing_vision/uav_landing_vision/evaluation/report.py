@@ -175,6 +175,21 @@ def _finite_or_none(x):
     return x if x is not None and np.isfinite(x) else None
 
 
+def strict_json(obj, indent: int = 2) -> str:
+    """``obj`` as strict JSON (which has no NaN or Infinity): a non-finite float is ``null``."""
+
+    def clean(x):
+        if isinstance(x, float):
+            return _finite_or_none(x)
+        if isinstance(x, dict):
+            return {k: clean(v) for k, v in x.items()}
+        if isinstance(x, (list, tuple)):
+            return [clean(v) for v in x]
+        return x
+
+    return json.dumps(clean(obj), indent=indent, allow_nan=False)
+
+
 def load_summary(path) -> dict:
     """The summary written by :func:`save_summary` (``null`` statistics read back as NaN), validated."""
     doc = json.loads(Path(path).read_text())

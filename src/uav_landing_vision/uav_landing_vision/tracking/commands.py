@@ -1,7 +1,6 @@
 """``uav-landing eval-metrics`` (the §6.5 sweep of the similarity metrics, Table 6.4) and
 ``uav-landing eval-optimisers`` (§6.6's pose optimisation protocol, Tables 6.9–6.10)."""
 
-import json
 from dataclasses import replace
 from pathlib import Path
 
@@ -48,6 +47,7 @@ def register(sub) -> None:
 def _run_optimisers(args) -> int:
     from ..camera import load_camera_info_yaml
     from ..cli import check_output
+    from ..evaluation.report import strict_json
     from ..model import fixed_wing_mesh
     from ..resources import config_path
     from .optimisation import SECTION_6_6_NOISE
@@ -68,7 +68,7 @@ def _run_optimisers(args) -> int:
     print(format_tables(result))
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(result, indent=2))
+        args.json.write_text(strict_json(result))
         print(f"wrote {args.json}")
     return 0
 

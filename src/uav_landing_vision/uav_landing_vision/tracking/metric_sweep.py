@@ -12,12 +12,12 @@ frames. Scoring uses the low-detail mesh, as the tracker does.
 """
 
 import csv
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from ..evaluation.report import strict_json
 from ..geometry import euler_zyx_to_quat, quat_multiply
 from .likelihood import ColourConfig, ContourConfig, DistanceTransformConfig, make_likelihood
 
@@ -153,7 +153,7 @@ def write_results(result: dict, out_dir) -> list[Path]:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths = [out / "metric_sweep.json", out / "metric_sweep.csv"]
-    paths[0].write_text(json.dumps(result, indent=1))
+    paths[0].write_text(strict_json(result, indent=1))
     with paths[1].open("w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["test", "axis", "kind", "value", "variant", "likelihood"])
