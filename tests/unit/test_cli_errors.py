@@ -126,6 +126,28 @@ def test_make_detection_data_refuses_a_missing_camera(tmp_path):
     assert not (tmp_path / "data").exists()
 
 
+def test_eval_detector_and_training_check_their_outputs_before_the_work(tmp_path, bags, monkeypatch):
+    """Checked after the whole bag or the whole training before (--png xyz left the JSON behind)."""
+    from uav_landing_vision.detection import evaluation, train
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("the work started")
+
+    monkeypatch.setattr(evaluation, "evaluate_bag", no_work)
+    monkeypatch.setattr(train, "train", no_work)
+    (tmp_path / "afile").write_text("")
+    (tmp_path / "adir").mkdir()
+    base = ["eval-detector", "--bag", str(bags / "full")]
+    _refused([*base, "--json", str(tmp_path / "m.json"), "--png", str(tmp_path / "m.xyz")], "--png .*m.xyz: give a file name ending in .png")
+    _refused([*base, "--json", str(tmp_path / "adir")], "--json .*adir is a folder")
+    _refused([*base, "--json", str(tmp_path / "m.json"), "--png", str(tmp_path / "afile" / "m.png")], "--png .*is not a writable folder")
+    (tmp_path / "data").mkdir()
+    (tmp_path / "data" / "dataset.json").write_text('{"images": 1}')
+    _refused(["train-detector", "--data", str(tmp_path / "data"), "--out", str(tmp_path / "run"),
+              "--export", str(tmp_path / "afile" / "d.onnx")], "--export .*is not a writable folder")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["adir", "afile", "data"]
+
+
 def test_train_verifier_fails_at_once_without_its_detector(tmp_path, monkeypatch):
     """The detector is loaded before the mining pool starts (whose failing workers would be
     restarted for ever)."""

@@ -212,7 +212,12 @@ def test_training_uses_every_folder_and_resumes_only_with_its_own_settings(tmp_p
     with pytest.raises(ValueError, match="other settings"):
         train(TrainConfig(**{**cfg.__dict__, "lr": 1e-3}), resume=True, progress=False)
     with pytest.raises(FileNotFoundError, match="dataset.json"):
-        train(TrainConfig(**{**cfg.__dict__, "data": (str(tmp_path),)}), progress=False)
+        train(TrainConfig(**{**cfg.__dict__, "data": (str(tmp_path),), "out": str(tmp_path / "new")}), progress=False)
+    # A new run into a finished one's folder would overwrite it unasked.
+    before = (tmp_path / "run" / "last.pt").read_bytes()
+    with pytest.raises(ValueError, match="holds a run already .*--resume"):
+        train(TrainConfig(**{**cfg.__dict__, "seed": 5}), progress=False)
+    assert (tmp_path / "run" / "last.pt").read_bytes() == before
     # Fine-tuning: a new run starts from the first run's network (a zero-step run keeps it as is).
     import torch
 
@@ -225,13 +230,16 @@ def test_training_uses_every_folder_and_resumes_only_with_its_own_settings(tmp_p
     state = load_checkpoint(tuned)["net"]
     assert all(torch.allclose(state[k].float(), first[k].float(), atol=1e-6) for k in first
                if "running" not in k and "num_batches" not in k)  # BatchNorm statistics move
+    other = str(tmp_path / "new")
     with pytest.raises(FileNotFoundError, match="to start from"):
-        train(TrainConfig(**{**tuned.__dict__, "init": str(tmp_path / "none.pt")}), progress=False)
+        train(TrainConfig(**{**tuned.__dict__, "out": other, "init": str(tmp_path / "none.pt")}), progress=False)
     # Not a checkpoint, or one of another width: named errors, not a pickle or torch traceback.
     with pytest.raises(ValueError, match=r"dataset.json is not a training checkpoint"):
-        train(TrainConfig(**{**tuned.__dict__, "init": str(tmp_path / "data1" / "dataset.json")}), progress=False)
+        train(TrainConfig(**{**tuned.__dict__, "out": other, "init": str(tmp_path / "data1" / "dataset.json")}),
+              progress=False)
     with pytest.raises(ValueError, match=r"last.pt does not fit a network of width 16"):
-        train(TrainConfig(**{**tuned.__dict__, "width": 16}), progress=False)
+        train(TrainConfig(**{**tuned.__dict__, "out": other, "width": 16}), progress=False)
+    assert not (tmp_path / "new").exists()  # refused runs leave no folder behind
     assert load_checkpoint(tuned)["frozen_normalisation"] is False
     (tmp_path / "run" / "last.pt").rename(tmp_path / "moved.pt")  # the start of a run is not needed to resume it
     train(tuned, resume=True, progress=False)

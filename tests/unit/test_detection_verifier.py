@@ -123,6 +123,8 @@ def test_training_resumes_only_with_its_own_settings_and_exports_what_it_trained
     assert len(log["epochs"]) == 1 and np.isfinite(log["epochs"][0]["loss"]) and "val_ap" in log["epochs"][0]
     with pytest.raises(ValueError, match="other settings"):
         train_verifier(VerifierTrainConfig(**{**cfg.__dict__, "lr": 1e-3}), resume=True, progress=False)
+    with pytest.raises(ValueError, match="holds a run already .*--resume"):  # overwritten unasked before
+        train_verifier(VerifierTrainConfig(**{**cfg.__dict__, "lr": 1e-3}), progress=False)
     longer = VerifierTrainConfig(**{**cfg.__dict__, "epochs": 2})
     with pytest.raises(ValueError, match="other settings"):
         load_checkpoint(longer)

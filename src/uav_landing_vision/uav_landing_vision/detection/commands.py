@@ -114,6 +114,7 @@ def _make_data(args) -> int:
 def _train(args) -> int:
     import time
 
+    from ..cli import check_output
     from .export import export_onnx
     from .train import TrainConfig, load_checkpoint, train, trained_network
 
@@ -126,6 +127,8 @@ def _train(args) -> int:
         raise SystemExit(f"uav-landing train-detector: {exc}") from None
     t0 = time.perf_counter()
     try:
+        if args.export is not None:  # before the training, not after it
+            check_output("--export", args.export)
         if not args.export_only:
             train(cfg, resume=args.resume)
         state = load_checkpoint(cfg)
@@ -146,6 +149,7 @@ def _train(args) -> int:
 def _train_verifier(args) -> int:
     import time
 
+    from ..cli import check_output
     from .export import export_verifier_onnx
     from .train import load_checkpoint
     from .verifier_train import VerifierTrainConfig, train_verifier, trained_verifier
@@ -155,6 +159,8 @@ def _train_verifier(args) -> int:
                                   mine_threshold=args.mine_threshold, epochs=args.epochs, batch=args.batch,
                                   lr=args.lr, width=args.width, seed=args.seed, threads=args.threads,
                                   workers=args.workers)
+        if args.export is not None:
+            check_output("--export", args.export)
         t0 = time.perf_counter()
         train_verifier(cfg, resume=args.resume)
         state = load_checkpoint(cfg)
@@ -171,6 +177,7 @@ def _train_verifier(args) -> int:
 
 
 def _evaluate(args) -> int:
+    from ..cli import check_output
     from ..graph import parse_remaps
     from .detector import DetectorConfig
     from .evaluation import evaluate_bag
@@ -180,6 +187,10 @@ def _evaluate(args) -> int:
         cfg = DetectorConfig(model=args.model, verifier=verifier, verifier_threshold=args.verifier_threshold,
                              score_threshold=args.threshold, threads=args.threads)
         png = args.png or args.json.with_suffix(".png")
+        if png.suffix.lower() != ".png":
+            raise ValueError(f"--png {png}: give a file name ending in .png")
+        check_output("--json", args.json)
+        check_output("--png", png)
         r = evaluate_bag(args.bag, cfg, args.json, png, truth_box=args.truth_box, remaps=parse_remaps(args.remap))
     except (ValueError, OSError) as exc:  # a bag that cannot be read or lacks a topic, a missing model
         raise SystemExit(f"uav-landing eval-detector: {exc}") from None

@@ -187,8 +187,9 @@ def evaluate_bag(bag, config, json_path, png_path=None, progress: bool = True, t
     result = summarise(frames, config.score_threshold)
     result.update(bag=str(bag), model=str(config.model), verifier=str(config.verifier),
                   verifier_threshold=config.verifier_threshold, truth_box=truth_box)
+    if png_path:  # first: a figure that fails leaves no metrics file that looks complete
+        Path(png_path).parent.mkdir(parents=True, exist_ok=True)
+        plot_pr(result, png_path, Path(str(bag)).name)
     Path(json_path).parent.mkdir(parents=True, exist_ok=True)
     Path(json_path).write_text(strict_json({k: v for k, v in result.items() if k != "curve"}))
-    if png_path:
-        plot_pr(result, png_path, Path(str(bag)).name)
     return result

@@ -205,7 +205,7 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
     from tqdm import tqdm
 
     out = Path(cfg.out)
-    out.mkdir(parents=True, exist_ok=True)
+    check_new_run(out, resume)
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(cfg.threads)
     val_items, train_items, shapes = [], [], {}
@@ -254,6 +254,7 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
     # A resumed run keeps its own (its start may be gone); a checkpoint older than the flag asks its start.
     frozen = state["frozen_normalisation"] if resume and "frozen_normalisation" in state else folded_normalisation(cfg)
     set_training(net, frozen)
+    out.mkdir(parents=True, exist_ok=True)  # now that the inputs are known good
     for epoch in range(start_epoch, cfg.epochs):
         train_set.epoch = epoch
         t0, totals, n = time.perf_counter(), np.zeros(3), 0
@@ -282,6 +283,12 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
         (out / "last.tmp").replace(ckpt)
     (out / "train_log.json").write_text(json.dumps(log, indent=2))
     return log
+
+
+def check_new_run(out: Path, resume: bool) -> None:
+    """ValueError when a run that is not a resumption would overwrite the checkpoint in ``out``."""
+    if not resume and (out / "last.pt").exists():
+        raise ValueError(f"{out} holds a run already (last.pt): give --resume to continue it, or choose a new folder")
 
 
 def folded_normalisation(cfg: TrainConfig) -> bool:

@@ -27,7 +27,7 @@ from .dataset import read_labels
 from .detector import Detector, DetectorConfig, box_iou
 from .evaluation import average_precision
 from .network import BoxVerifierNet
-from .train import VAL_EVERY, check_optimiser_settings, restore
+from .train import VAL_EVERY, check_new_run, check_optimiser_settings, restore
 from .verifier import CropGeometry, box_crops, crop_blob
 
 MINE_MAX_BOXES = 20  # candidate boxes per image
@@ -186,8 +186,8 @@ def train_verifier(cfg: VerifierTrainConfig, resume: bool = False, progress: boo
     from tqdm import tqdm
 
     out = Path(cfg.out)
-    out.mkdir(parents=True, exist_ok=True)
-    mined = mine_crops(cfg, progress)
+    check_new_run(out, resume)
+    mined = mine_crops(cfg, progress)  # writes out/crops.npz, making the folder
     train_idx, val_idx = np.flatnonzero(~mined["validation"]), np.flatnonzero(mined["validation"])
     crops, labels = mined["crops"], (mined["labels"] == 1).astype(np.float32)
     if not len(train_idx) or labels[train_idx].min() == labels[train_idx].max():
