@@ -253,6 +253,23 @@ def test_evaluation_commands_name_the_option_of_a_bad_number(tmp_path, monkeypat
         _refused(argv, message)
 
 
+def test_detection_commands_refuse_a_negative_seed_at_once(tmp_path, monkeypatch):
+    """numpy's "expected non-negative integer" before, after mining or an epoch had started."""
+    from uav_landing_vision.detection import dataset, train, verifier_train
+
+    def ran(*args, **kwargs):
+        raise AssertionError("the work started before the seed was checked")
+
+    for module, name in ((dataset, "generate"), (train, "train"), (verifier_train, "train_verifier")):
+        monkeypatch.setattr(module, name, ran)
+    (tmp_path / "data").mkdir()
+    (tmp_path / "data" / "dataset.json").write_text('{"images": 1}')
+    for argv in (["make-detection-data", "--out", str(tmp_path / "new"), "--seed", "-1"],
+                 ["train-detector", "--data", str(tmp_path / "data"), "--out", str(tmp_path / "run"), "--seed", "-1"],
+                 ["train-verifier", "--data", str(tmp_path / "data"), "--out", str(tmp_path / "run"), "--seed", "-1"]):
+        _refused(argv, "seed must be non-negative, got -1")
+
+
 def test_evaluations_refuse_distances_that_share_a_table(monkeypatch):
     """Each distance has its own table, keyed by its printed value: a repeat would silently replace one."""
     _never_run(monkeypatch)

@@ -72,6 +72,8 @@ class DatasetConfig:
     jpeg_quality: int = 92
 
     def __post_init__(self):
+        if self.seed < 0:  # SeedSequence's own error names no option, and comes late
+            raise ValueError(f"seed must be non-negative, got {self.seed}")
         unknown = set(self.families) - set(FAMILIES)
         if not self.families or unknown:
             raise ValueError(f"families must be a non-empty subset of {FAMILIES}, got {self.families}")

@@ -55,6 +55,8 @@ class TrainConfig:
     init: str = ""
 
     def __post_init__(self):
+        if self.seed < 0:  # SeedSequence's own error names no option, and comes late
+            raise ValueError(f"seed must be non-negative, got {self.seed}")
         if (self.epochs < 1 or self.batch < 1 or self.width < 8 or self.threads < 1 or self.loader_workers < 0
                 or self.max_images < 0):
             raise ValueError("need epochs ≥ 1, batch ≥ 1, width ≥ 8, threads ≥ 1, loader_workers ≥ 0 "

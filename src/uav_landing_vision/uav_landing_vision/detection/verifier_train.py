@@ -51,6 +51,8 @@ class VerifierTrainConfig:
     workers: int = 2  # mining processes
 
     def __post_init__(self):
+        if self.seed < 0:  # SeedSequence's own error names no option, and comes late
+            raise ValueError(f"seed must be non-negative, got {self.seed}")
         if self.epochs < 1 or self.batch < 2 or self.width < 4 or self.threads < 1 or self.workers < 1:
             raise ValueError("need epochs ≥ 1, batch ≥ 2, width ≥ 4, threads ≥ 1, workers ≥ 1")
         check_optimiser_settings(self.lr, self.weight_decay)
