@@ -59,3 +59,7 @@ def test_eval_metrics_command_peaks_at_the_true_pose(tmp_path, capsys):
 def test_eval_metrics_refuses_bad_distance(tmp_path):
     with pytest.raises(SystemExit, match="distance"):
         main(["eval-metrics", "--distance", "0.2", "--out", str(tmp_path)])
+    # So far that the UAV is a few pixels: curves of noise written as results before.
+    with pytest.raises(SystemExit, match=r"at 10000 m the UAV spans 0.\d px, under 16: choose a smaller distance"):
+        main(["eval-metrics", "--distance", "1e4", "--out", str(tmp_path / "far")])
+    assert not (tmp_path / "far").exists()

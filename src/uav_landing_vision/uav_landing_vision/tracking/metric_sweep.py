@@ -22,6 +22,7 @@ from ..geometry import euler_zyx_to_quat, quat_multiply
 from .likelihood import ColourConfig, ContourConfig, DistanceTransformConfig, make_likelihood
 
 NOMINAL_DISTANCE_M = 5.0
+MIN_SPAN_PX = 16  # the least wing span in the image that the sweep scores
 VARIANTS = {
     "colour": {"colour": ColourConfig()},
     "contour": {f"contour{r}": ContourConfig(search_px=r) for r in (15, 25)},
@@ -120,12 +121,15 @@ def run_sweep(metrics=tuple(VARIANTS), distance: float = NOMINAL_DISTANCE_M, bac
 
     Each (test, variant) is one batched render and score. Returns a JSON-ready dict.
     """
-    from ..model import fixed_wing_mesh
+    from ..model import SPAN, fixed_wing_mesh
     from ..render import Renderer
 
     if not 0.5 < distance < np.inf:
         raise ValueError(f"distance must be finite and exceed 0.5 m, got {distance}")
     camera, frame = sweep_frame(background, distance, seed)
+    if camera.fx * SPAN / distance < MIN_SPAN_PX:  # the curves would be noise (peaks at -180° at 10 km)
+        raise ValueError(f"at {distance:g} m the UAV spans {camera.fx * SPAN / distance:.1f} px, "
+                         f"under {MIN_SPAN_PX}: choose a smaller distance")
     with Renderer(camera, fixed_wing_mesh("low"), tile=tile, max_batch=512) as renderer:
         scorers = {}
         for metric in metrics:
