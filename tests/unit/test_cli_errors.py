@@ -225,6 +225,7 @@ def test_evaluation_commands_refuse_an_unwritable_output_before_running(tmp_path
             ([*score, "--json", str(tmp_path)], f"--json {tmp_path} is a folder"),
             ([*score, "--json", str(tmp_path / "s.json"), "--report-dir", str(blocker)],
              f"--report-dir {blocker} is not a folder"),
+            ([*score, "--json", str(blocker)], f"--json {blocker} is the --estimate file"),  # overwritten before
             (["evaluate", "--bag", str(bags / "full"), "--json", under_file], "--json .* is not a writable folder"),
             (["evaluate", "--bag", str(bags / "full"), "--plots", str(blocker)], "--plots .* is not a folder"),
             (["eval-metrics", "--out", str(blocker)], "--out .* is not a folder"),

@@ -209,7 +209,7 @@ def test_training_uses_every_folder_and_resumes_only_with_its_own_settings(tmp_p
     assert (log["train_images"], log["val_images"]) == (6, 2)  # every 10th image of each folder validates
     assert len(log["epochs"]) == 1 and np.isfinite(log["epochs"][0]["loss"])
     assert (tmp_path / "run" / "last.pt").is_file() and (tmp_path / "run" / "train_log.json").is_file()
-    with pytest.raises(ValueError, match="other settings"):
+    with pytest.raises(ValueError, match=r"other settings \(lr: 0.002 there, 0.001 here\)"):
         train(TrainConfig(**{**cfg.__dict__, "lr": 1e-3}), resume=True, progress=False)
     with pytest.raises(FileNotFoundError, match="dataset.json"):
         train(TrainConfig(**{**cfg.__dict__, "data": (str(tmp_path),), "out": str(tmp_path / "new")}), progress=False)
@@ -321,6 +321,7 @@ def test_fine_tuning_starts_from_an_exported_model(tmp_path):
     ({"weight_decay": -1.0}, "weight_decay"),
     ({"max_images": -3}, "max_images"),
     ({"input_size": (4128, 192)}, "at most 4096"),  # it trained, then failed in the export
+    ({"data": ("data", "./data")}, "given more than once"),  # its images counted twice
 ])
 def test_training_settings_that_cannot_train_are_refused(kwargs, message):
     """An empty input (it trained, then failed in the export with a traceback), a crop with one

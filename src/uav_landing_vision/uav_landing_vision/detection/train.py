@@ -69,8 +69,16 @@ class TrainConfig:
             raise ValueError(f"input_size and crop must be multiples of {max(STRIDES)}")
         if max(self.input_size) > MAX_EXPORT_SIDE:
             raise ValueError(f"input_size sides must be at most {MAX_EXPORT_SIDE} (the ONNX export's), got {self.input_size}")
-        if not self.data:
-            raise ValueError("no dataset folder given")
+        check_dataset_folders(self.data)
+
+
+def check_dataset_folders(data) -> None:
+    """ValueError for no dataset folder, or one given twice (its images would count twice)."""
+    if not data:
+        raise ValueError("no dataset folder given")
+    seen = [Path(d).resolve() for d in data]
+    if len(set(seen)) != len(seen):
+        raise ValueError(f"a dataset folder is given more than once: {[str(d) for d in data]}")
 
 
 class LetterboxedImages(torch.utils.data.Dataset):
@@ -399,9 +407,11 @@ def load_checkpoint(cfg) -> dict:
         raise FileNotFoundError(f"no checkpoint {ckpt}")
     state = torch.load(ckpt, weights_only=False)
     # Settings added since the checkpoint was written count as their defaults.
-    saved = {**{f.name: f.default for f in fields(cfg)}, **state["config"]}
-    if saved != asdict(cfg):
-        raise ValueError(f"{ckpt} was made with other settings: {state['config']}")
+    saved, given = {**{f.name: f.default for f in fields(cfg)}, **state["config"]}, asdict(cfg)
+    differ = [f"{k}: {saved.get(k)!r} there, {given.get(k)!r} here" for k in sorted(saved.keys() | given.keys())
+              if saved.get(k) != given.get(k)]
+    if differ:
+        raise ValueError(f"{ckpt} was made with other settings ({'; '.join(differ)}); give the same to use it")
     return state
 
 

@@ -27,7 +27,7 @@ from .dataset import read_labels
 from .detector import Detector, DetectorConfig, box_iou
 from .evaluation import average_precision
 from .network import BoxVerifierNet
-from .train import VAL_EVERY, check_new_run, check_optimiser_settings, restore
+from .train import VAL_EVERY, check_dataset_folders, check_new_run, check_optimiser_settings, restore
 from .verifier import CropGeometry, box_crops, crop_blob
 
 MINE_MAX_BOXES = 20  # candidate boxes per image
@@ -58,8 +58,7 @@ class VerifierTrainConfig:
         check_optimiser_settings(self.lr, self.weight_decay)
         if not 0 < self.mine_threshold < 1 or not 0 <= self.negative_iou < self.positive_iou <= 1:
             raise ValueError("need 0 < mine_threshold < 1 and 0 ≤ negative_iou < positive_iou ≤ 1")
-        if not self.data:
-            raise ValueError("no dataset folder given")
+        check_dataset_folders(self.data)
 
     def mining(self) -> dict:
         """The settings the mined crops depend on."""

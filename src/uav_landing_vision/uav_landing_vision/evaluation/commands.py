@@ -34,6 +34,8 @@ def _run(args) -> int:
             raise SystemExit(f"uav-landing score: {what} {path} does not exist")
     try:
         check_output("--json", args.json)
+        if args.json.resolve() == args.estimate.resolve():
+            raise ValueError(f"--json {args.json} is the --estimate file: it would be overwritten")
         if args.report_dir:
             check_output("--report-dir", args.report_dir, folder=True)
         errors, ms = score_files(args.truth, args.estimate, args.topic)

@@ -187,7 +187,8 @@ class VideoBackground:
     def __init__(self, camera: CameraModel, source: str, topic: str = ""):
         path = Path(source)
         if not source or not path.exists():
-            raise BackgroundError(f"video background: file or bag {source!r} not found (give --video FILE)")
+            raise BackgroundError(f"video background: file or bag {source!r} not found (give one: the scenario's "
+                                  "background.video, or --video of simulate and make-detection-data)")
         self.size = (camera.width, camera.height)
         self.path, self.topic = path, topic
         self.is_bag = path.is_dir() or path.suffix in (".mcap", ".db3")
