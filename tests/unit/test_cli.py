@@ -21,6 +21,8 @@ def test_every_subcommand_has_help(capsys):
 def test_demo_rejects_bad_frame_count():
     with pytest.raises(SystemExit, match="--frames must be at least 1"):
         main(["demo", "--frames", "0"])
+    with pytest.raises(SystemExit, match="--strip must be at least 1, got 0"):  # one frame, silently, before
+        main(["demo", "--strip", "0"])
 
 
 def test_demo_replay_waits_for_every_link_of_the_graph(tmp_path):

@@ -45,6 +45,8 @@ def _run(args) -> int:
         raise SystemExit("uav-landing demo: --frames must be at least 1")
     if args.seed is not None and args.seed < 0:
         raise SystemExit("uav-landing demo: --seed must be non-negative")
+    if args.strip < 1:
+        raise SystemExit(f"uav-landing demo: --strip must be at least 1, got {args.strip}")
     out = args.out.resolve()
     bag = simulated_bag(out / "bags", args.scenario, args.seed, args.frames)
     report = out / "evaluation"

@@ -10,7 +10,7 @@ def _size(text: str) -> tuple[int, int]:
 
 def register(sub) -> None:
     p = sub.add_parser("make-detection-data", help="generate the synthetic detection dataset (§4.2.2)")
-    p.add_argument("--out", type=Path, required=True, help="new dataset folder (under out/)")
+    p.add_argument("--out", type=Path, required=True, help="dataset folder (a new one, or an unfinished one to continue)")
     p.add_argument("--count", type=int, default=1000, help="number of images (default: 1000)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--families", default="normal,complex", help="comma list of normal,complex,images,video")
@@ -36,7 +36,7 @@ def register(sub) -> None:
     p = sub.add_parser("train-detector", help="train the detector on the CPU and export it to ONNX")
     p.add_argument("--data", type=Path, nargs="+", default=[Path("out/detection_data")],
                    help="dataset folder(s) of make-detection-data, used together (default: out/detection_data)")
-    p.add_argument("--out", type=Path, default=Path("out/detector_train"), help="run folder (checkpoints, log)")
+    p.add_argument("--out", type=Path, default=Path("out/detector_train"), help="run folder (checkpoints, log); a new one unless --resume")
     p.add_argument("--epochs", type=int, default=30)
     p.add_argument("--batch", type=int, default=16)
     p.add_argument("--lr", type=float, default=2e-3)
