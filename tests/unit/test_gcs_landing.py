@@ -530,3 +530,137 @@ def test_dataclass_config_is_what_the_bridge_uses():
     b = GcsBridge(cfg, sender=sender)
     fly(b, lambda t: on_axis(40.0), t_end=0.5)
     assert b.stage == Stage.APPROACH  # 40 m is outside a 30 m cone
+
+
+# Tests from a mutation audit of the bridge: each fails on a mutant that an earlier test let pass.
+
+def test_one_pose_seen_at_several_ticks_counts_once_towards_no_return(bridge):
+    """The stage machine takes the pose's stamp, not the tick's: a lone in-cone outlier at 8 m,
+    the last pose before the tracker stalls, stays fresh for three ticks and must not count as
+    three confirming poses."""
+    fly(bridge, approach(), t_end=(120.0 - 20.0) / 20.0)  # LAND at 20 m
+    assert bridge.stage == Stage.LAND
+    feed(bridge, 5.05, on_axis(8.0))
+    seen = [bridge.tick(t).guidance.stage for t in (5.06, 5.16, 5.26, 5.36)]
+    assert Stage.NO_RETURN not in seen and seen[-1] == Stage.GO_AROUND, seen
+
+
+def test_an_outward_range_jump_breaks_the_run_towards_no_return():
+    m = StageMachine(CONE, go_around_hold_s=1.0)
+    for k, r in enumerate([16.0, 15.0, 14.0]):
+        m.update(0.1 * k, geometry_at(r), 0.1 * k)
+    assert m.stage == Stage.LAND
+    assert m.update(0.3, geometry_at(2.0), 0.3) == Stage.LAND  # 12 m in: the run restarts at 2 m
+    assert m.update(0.4, geometry_at(9.0), 0.4) == Stage.LAND  # 7 m out, beyond the rate bound: restarts at 9 m
+    assert m.update(0.5, geometry_at(8.8), 0.5) == Stage.LAND  # two poses of three
+
+
+def test_a_range_change_exactly_at_the_rate_bound_is_plausible():
+    m = StageMachine(CONE, go_around_hold_s=1.0)  # 40 m/s × 0.25 s = 10 m, exact in binary
+    for k, r in enumerate([19.0, 18.0, 17.0]):
+        m.update(0.25 * k, geometry_at(r), 0.25 * k)
+    assert m.update(0.75, geometry_at(7.0), 0.75) == Stage.NO_RETURN
+
+
+def _tracked_pose_at(bridge, t=1.0):
+    """TRACKING before and at ``t``, with the pose of the frame at ``t`` (40 m out)."""
+    bridge.on_tracker_state(TRACKER_TRACKING, t - 0.1)
+    p_cam, q_cam = camera_pose(on_axis(40.0))
+    assert bridge.on_pose(t, p_cam, q_cam, COV, now_s=t)
+
+
+def test_a_pose_of_an_abandoned_track_is_never_sent_while_acquiring(bridge):
+    _tracked_pose_at(bridge)
+    bridge.on_tracker_state(TRACKER_TRACKING, 1.0)
+    bridge.on_tracker_state(TRACKER_ACQUIRING, 1.03)  # the track restarts, no pose from it yet
+    first, second = bridge.tick(1.05), bridge.tick(1.15)  # still ACQUIRING at the second tick
+    assert "ODOMETRY" not in first.sent and "ODOMETRY" not in second.sent
+    assert math.isnan(second.guidance.range) and second.guidance.stage == Stage.LOITER
+
+
+def test_a_pose_whose_own_status_says_acquiring_is_not_sent_on_a_later_tracking(bridge):
+    """The next frame's TRACKING arrives without its pose (lost in transit): the held pose was
+    flagged by its own frame's status and stays unsent."""
+    _tracked_pose_at(bridge)
+    bridge.on_tracker_state(TRACKER_ACQUIRING, 1.0)
+    assert "ODOMETRY" not in bridge.tick(1.05).sent
+    bridge.on_tracker_state(TRACKER_TRACKING, 1.1)
+    result = bridge.tick(1.15)
+    assert "ODOMETRY" not in result.sent and math.isnan(result.guidance.range)
+
+
+def test_lost_drops_the_held_pose_even_when_the_track_is_soon_back(bridge):
+    _tracked_pose_at(bridge)
+    bridge.on_tracker_state(TRACKER_TRACKING, 1.0)
+    bridge.on_tracker_state(TRACKER_LOST, 1.03)
+    assert "ODOMETRY" not in bridge.tick(1.05).sent
+    bridge.on_tracker_state(TRACKER_TRACKING, 1.1)  # re-acquired; that frame's pose not here yet
+    result = bridge.tick(1.15)
+    assert "ODOMETRY" not in result.sent and math.isnan(result.guidance.range)
+
+
+def test_lost_of_an_earlier_frame_drops_a_pose_waiting_for_its_status(bridge):
+    p_cam, q_cam = camera_pose(on_axis(40.0))
+    assert bridge.on_pose(1.0, p_cam, q_cam, COV, now_s=1.0)
+    bridge.on_tracker_state(TRACKER_LOST, 0.97)
+    bridge.on_tracker_state(TRACKER_TRACKING, 1.0)
+    assert "ODOMETRY" not in bridge.tick(1.05).sent
+    assert "ODOMETRY" not in bridge.tick(1.15).sent
+
+
+def test_an_older_fresh_pose_does_not_replace_the_one_waiting_for_its_status(bridge):
+    p_cam, q_cam = camera_pose(on_axis(40.0))
+    assert bridge.on_pose(2.0, p_cam, q_cam, COV, now_s=2.0)  # waits: no status yet
+    assert not bridge.on_pose(1.9, p_cam, q_cam, COV, now_s=2.0)  # older, still fresh
+    bridge.on_tracker_state(TRACKER_TRACKING, 2.0)
+    assert "ODOMETRY" in bridge.tick(2.01).sent and bridge.sender.poses[-1][0] == 2.0
+
+
+def test_a_waiting_pose_ahead_of_a_clock_that_jumped_back_is_forgotten(bridge):
+    """A replay restarted: the pose of the old time-line would refuse every new one until the
+    clock passed it."""
+    p_cam, q_cam = camera_pose(on_axis(40.0))
+    bridge.on_tracker_state(TRACKER_TRACKING, 499.9)
+    assert bridge.on_pose(500.0, p_cam, q_cam, COV, now_s=500.0)  # waits for its status
+    assert bridge.on_pose(1.0, p_cam, q_cam, COV, now_s=1.01)
+    bridge.on_tracker_state(TRACKER_TRACKING, 1.0)
+    assert "ODOMETRY" in bridge.tick(1.02).sent
+
+
+def test_a_pose_a_little_ahead_of_the_clock_is_used(bridge):
+    """A camera clock 20 ms ahead of the bridge's, within the tolerance: the pose guides."""
+    fly(bridge, approach(), t_end=(120.0 - 30.0) / 20.0)  # LAND at 30 m
+    p_cam, q_cam = camera_pose(on_axis(29.0))
+    assert bridge.on_pose(4.65, p_cam, q_cam, COV, now_s=4.63)
+    bridge.on_tracker_state(TRACKER_TRACKING, 4.65)
+    result = bridge.tick(4.64)
+    assert "ODOMETRY" in result.sent and result.guidance.stage == Stage.LAND and result.guidance.stamp_s == 4.65
+
+
+def test_a_pose_exactly_the_stale_timeout_old_is_still_fresh():
+    cfg = dataclasses.replace(CONFIG, stale_timeout_s=0.25, mavlink=dataclasses.replace(CONFIG.mavlink, rate_hz=4.0))
+    bridge = GcsBridge(cfg, sender=RecordingSender())
+    bridge.on_tracker_state(TRACKER_TRACKING, 0.5)
+    p_cam, q_cam = camera_pose(on_axis(40.0))
+    assert bridge.on_pose(0.5, p_cam, q_cam, COV, now_s=0.5)
+    assert "ODOMETRY" in bridge.tick(0.75).sent
+
+
+def test_the_approach_course_is_in_degrees():
+    cone = dataclasses.replace(CONE, approach_course_deg=90.0)  # flying to starboard: in from port (−y)
+    g = cone_geometry(np.array([0.0, -30.0 * math.cos(GAMMA), -30.0 * math.sin(GAMMA)]), cone)
+    assert g.inside_cone and g.lateral_angle == pytest.approx(0.0, abs=1e-12)
+
+
+def test_guidance_says_when_a_tracked_pose_is_outside_the_cone(bridge):
+    feed(bridge, 1.0, on_axis(30.0, gamma=math.radians(15.0)))
+    g = bridge.tick(1.03).guidance
+    assert g.stage == Stage.APPROACH and not g.inside_cone and not math.isnan(g.range)
+
+
+def test_a_heartbeat_every_second_and_at_once_when_the_link_is_back(bridge):
+    assert bridge.tick(0.0).sent == ("HEARTBEAT",)
+    assert bridge.tick(0.5).sent == ()
+    assert bridge.tick(1.0).sent == ("HEARTBEAT",)
+    bridge.sender.poll = lambda: True
+    assert bridge.tick(1.3).sent == ("HEARTBEAT", "STATUSTEXT")

@@ -194,3 +194,17 @@ def test_bad_key_files(tmp_path, text):
     path.write_text(text)
     with pytest.raises(ValueError, match="64 hexadecimal"):
         load_signing_key(path)
+
+
+@pytest.mark.parametrize("frame, frame_id", [("LOCAL_FRD", 20), ("LOCAL_NED", 1), ("MOCAP_NED", 14)])
+def test_odometry_carries_the_configured_frame_and_the_stamp_to_the_microsecond(frame, frame_id):
+    """MAV_FRAME ids from MAVLink's common.xml; 1.001 s is not exact in binary (cut, not rounded, it is 1000999 µs)."""
+    from pymavlink.dialects.v20 import common as mav2
+
+    from uav_landing_vision.gcs.frames import LandingPose
+    from uav_landing_vision.gcs.mavlink import encode_pose
+
+    mav = mav2.MAVLink(None, srcSystem=1, srcComponent=197)
+    pose = LandingPose(np.array([-30.0, 1.0, -3.0]), np.array([0.0, 0.0, 0.0, 1.0]), np.eye(6) * 1e-3)
+    (msg,) = encode_pose(mav, ("ODOMETRY",), pose, 1.001, frame)
+    assert msg.frame_id == frame_id and msg.time_usec == 1_001_000
