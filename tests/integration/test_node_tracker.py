@@ -409,10 +409,15 @@ def test_a_calibration_it_cannot_use_is_dropped_and_the_last_one_kept(ros, gener
         # Each passed start-up before: the renderer refused every calibration later (the tracker
         # up, never tracking), or the first squared noise overflowed in a callback.
         (Parameter("tile", value=2048), "tile must be 16 to 1024 px"),
-        (Parameter("refine.candidates", value=100000),
-         r"silhouette atlas .* exceeds .*; lower particles \(100\), refine.candidates \(100000\) or tile"),
+        # 65536 px wide: beyond any GL's limit (NVIDIA's is 32768)
+        (Parameter("refine.candidates", value=10**6),
+         r"silhouette atlas .* exceeds .*; lower particles \(100\), refine.candidates \(1000000\) or tile"),
         (Parameter("motion.position_process_std", value=1e200), "position_process_std must be positive and at most"),
         (Parameter("covariance_floor_m", value=1e200), "covariance_floor_m must be within 0 to 1000"),
+        (Parameter("pfo.noise_trans_sigma_m", value=[1e20, 0.1, 0.2]), "noise_trans_sigma_m must be positive and at most"),
+        (Parameter("refine.sigma_deg", value=[1e155]), r"sigma_deg must be non-empty and within \(0, 180\]"),
+        (Parameter("motion.dt", value=1e155), "dt must be positive and at most 10 s"),
+        (Parameter("motion.ukf_beta", value=1e60), "beta and kappa must be within 0 to 100"),
     ],
 )
 def test_bad_parameters_fail_start_up(ros, override, message):

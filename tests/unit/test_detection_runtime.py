@@ -174,7 +174,7 @@ def test_nms_matches_opencv_on_random_boxes_with_ties_and_duplicates():
         np.testing.assert_array_equal(nms(boxes, scores, iou), expected)
 
 
-@pytest.mark.parametrize("grow", [float("nan"), float("inf")])
+@pytest.mark.parametrize("grow", [float("nan"), float("inf"), 1e308])  # 1e308: an OverflowError in search_window
 def test_config_refuses_a_search_window_growth_that_is_not_finite(grow):
     """A NaN or infinite growth would pass the config and then fail every windowed frame."""
     with pytest.raises(ValueError, match="window_grow"):

@@ -118,14 +118,14 @@ def test_invalid_parameters_are_errors():
         TranslationUKF(DT, np.ones(6), np.eye(3) + np.diag([0.1, 0.1], k=1))
 
 
-@pytest.mark.parametrize("change", [{"kappa": np.inf}, {"beta": np.inf}, {"beta": np.nan}])
-def test_non_finite_unscented_parameters_are_errors(change):
-    """An infinite κ or β made every sigma-point weight NaN."""
-    with pytest.raises(ValueError, match="finite"):
+@pytest.mark.parametrize("change", [{"kappa": np.inf}, {"beta": np.inf}, {"beta": np.nan}, {"beta": 1e60}])
+def test_non_finite_or_huge_unscented_parameters_are_errors(change):
+    """An infinite κ or β made every sigma-point weight NaN; β = 1e60 made the filters' matrices singular."""
+    with pytest.raises(ValueError, match="beta and kappa must be within 0 to 100"):
         UnscentedParams(**change)
 
 
-@pytest.mark.parametrize("dt", [np.inf, np.nan, -0.01])
+@pytest.mark.parametrize("dt", [np.inf, np.nan, -0.01, 1e155])  # 1e155: its square overflowed in the UBiF
 def test_non_finite_or_negative_time_steps_are_errors(dt):
     """An infinite Δt made the transition matrix (A.2) and every prediction NaN."""
     with pytest.raises(ValueError, match="dt"):

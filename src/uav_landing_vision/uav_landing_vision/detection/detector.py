@@ -44,8 +44,8 @@ class DetectorConfig:
             raise ValueError("score_threshold must be in (0, 1) and nms_iou in (0, 1]")
         if not 0.0 <= self.verifier_threshold < 1.0:
             raise ValueError("verifier_threshold must be in [0, 1)")
-        if not (np.isfinite(self.window_grow) and self.window_grow >= 1.0):
-            raise ValueError(f"window_grow must be finite and ≥ 1, got {self.window_grow}")
+        if not 1.0 <= self.window_grow <= 100.0:  # a larger window is the whole frame
+            raise ValueError(f"window_grow must be within 1 to 100, got {self.window_grow}")
         if self.max_detections < 1 or not 1 <= self.threads <= MAX_THREADS or self.window_min_px < 32:
             raise ValueError(f"need max_detections ≥ 1, 1 ≤ threads ≤ {MAX_THREADS}, window_min_px ≥ 32")
 

@@ -22,6 +22,9 @@ from ..geometry import (
 )
 from . import outliers
 
+MAX_DT = 10.0  # s: the longest frame interval a motion model is stepped over
+MAX_BETA_KAPPA = 100.0  # beyond, the sigma points' covariance weights overflow the filters (1e60: singular)
+
 
 @dataclass(frozen=True)
 class UnscentedParams:
@@ -34,8 +37,8 @@ class UnscentedParams:
     def __post_init__(self):
         if not 0.0 < self.alpha <= 1.0:
             raise ValueError(f"alpha must be in (0, 1], got {self.alpha}")
-        if not (0.0 <= self.beta < np.inf and 0.0 <= self.kappa < np.inf):
-            raise ValueError(f"beta and kappa must be finite and non-negative, got {self.beta}, {self.kappa}")
+        if not (0.0 <= self.beta <= MAX_BETA_KAPPA and 0.0 <= self.kappa <= MAX_BETA_KAPPA):
+            raise ValueError(f"beta and kappa must be within 0 to {MAX_BETA_KAPPA:g}, got {self.beta}, {self.kappa}")
 
     def weights(self, n: int) -> tuple[np.ndarray, np.ndarray, float]:
         """Mean and covariance weights (A.17), (A.18), (A.21) and the scale ι (A.13)."""
@@ -208,9 +211,9 @@ class RotationUKF:
 
 
 def check_dt(dt: float) -> float:
-    """The time step Δt: finite and positive."""
-    if not (np.isfinite(dt) and dt > 0):
-        raise ValueError(f"dt must be finite and positive, got {dt}")
+    """The time step Δt: positive and at most :data:`MAX_DT` s."""
+    if not 0 < dt <= MAX_DT:
+        raise ValueError(f"dt must be positive and at most {MAX_DT:g} s, got {dt}")
     return dt
 
 

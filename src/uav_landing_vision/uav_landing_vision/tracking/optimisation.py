@@ -22,6 +22,8 @@ from typing import Literal
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from ..filters.motion import MAX_STD
+from ..filters.ukf import MAX_DT
 from ..geometry import (
     euler_zyx_to_quat,
     geodesic_angle,
@@ -71,9 +73,10 @@ def _check_iterations(iterations: int) -> None:
         raise ValueError("optimisation needs at least one iteration")
 
 
-def _positive(name: str, values) -> None:
-    if not np.all(np.asarray(values, dtype=float) > 0.0):
-        raise ValueError(f"{name} must be positive")
+def _positive(name: str, values, high: float = np.inf) -> None:
+    values = np.asarray(values, dtype=float)
+    if not np.all((values > 0.0) & (values <= high)):
+        raise ValueError(f"{name} must be positive" + (f" and at most {high:g}" if high < np.inf else ""))
 
 
 # --- PFO (Algorithm 8, Tables 6.6-6.7) ------------------------------------------------------
@@ -110,9 +113,9 @@ class PFOConfig:
             raise ValueError(f"pfo.schedule: unknown {self.schedule!r}")
         if self.resampling not in RESAMPLERS:
             raise ValueError(f"pfo.resampling: unknown {self.resampling!r}; known: {sorted(RESAMPLERS)}")
-        _positive("pfo.dt", self.dt)
-        _positive("pfo.noise_trans_sigma_m", self.noise_trans_sigma_m)
-        _positive("pfo.noise_rate_sigma", self.noise_rate_sigma)
+        _positive("pfo.dt", self.dt, MAX_DT)
+        _positive("pfo.noise_trans_sigma_m", self.noise_trans_sigma_m, MAX_STD)  # beyond, the draws overflow
+        _positive("pfo.noise_rate_sigma", self.noise_rate_sigma, MAX_STD)
         if self.phase_length < 1:
             raise ValueError("pfo.phase_length must be at least 1")
 

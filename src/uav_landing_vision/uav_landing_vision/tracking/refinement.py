@@ -37,8 +37,8 @@ class RotationRefinementConfig:
     def __post_init__(self):
         if not (isinstance(self.candidates, int) and self.candidates >= 0):
             raise ValueError(f"refinement candidates must be a non-negative integer, got {self.candidates!r}")
-        if not self.sigma_deg or not all(s > 0 for s in self.sigma_deg):
-            raise ValueError(f"refinement sigma_deg must be non-empty and positive, got {self.sigma_deg!r}")
+        if not self.sigma_deg or not all(0 < s <= 180 for s in self.sigma_deg):
+            raise ValueError(f"refinement sigma_deg must be non-empty and within (0, 180], got {self.sigma_deg!r}")
         if not (np.isfinite(self.align_px) and self.align_px >= 0.0):
             raise ValueError(f"refinement align_px must be non-negative, got {self.align_px!r}")
 
