@@ -1,5 +1,7 @@
 """Pose database: (4.4) ranking and θ periodicity, sampling, file round trip and checks, self-query."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -168,6 +170,21 @@ def test_truncated_or_damaged_files_are_clear_errors(tmp_path, synthetic):
         np.savez(tmp_path / "range.npz", **{**z, "format_version": np.int32(1), "half_range_deg": np.array(half_range)})
         with pytest.raises(DatabaseError, match="half_range_deg must be three angles"):
             PoseDatabase.load(tmp_path / "range.npz")
+
+
+def test_an_unreadable_database_is_not_called_corrupt(tmp_path, synthetic, monkeypatch):
+    """A root-owned 0600 file needs its permissions fixed, not a rebuild."""
+    path = synthetic.save(tmp_path / "ok.npz")
+    real_open = Path.open
+
+    def denied(self, *args, **kwargs):
+        if self == path:
+            raise PermissionError(13, "Permission denied", str(self))
+        return real_open(self, *args, **kwargs)
+
+    monkeypatch.setattr(Path, "open", denied)
+    with pytest.raises(DatabaseError, match="unreadable or corrupt: .*Permission denied"):
+        PoseDatabase.load(path)
 
 
 def test_missing_corrupt_or_mismatched_files_are_clear_errors(tmp_path, camera, synthetic):

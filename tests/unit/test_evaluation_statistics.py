@@ -200,6 +200,15 @@ def test_a_name_with_dollar_signs_is_drawn_as_written(tmp_path):
     plot_errors(tmp_path / "t.png", err, TRANSLATION_COLUMNS, "m")
     plot_pr({"curve": {"recall": [0.0, 1.0], "precision": [1.0, 0.5]}, "ap50": 0.75}, tmp_path / "pr.png", "b$\\x$")
     assert (tmp_path / "t.png").stat().st_size > 0 and (tmp_path / "pr.png").stat().st_size > 0
+    import matplotlib.pyplot as plt
+
+    from uav_landing_vision.evaluation.report import plot_text
+
+    fig, ax = plt.subplots()  # matplotlib leaves a label starting with "_" out of the legend
+    for name in ("_baseline", "C4N2"):
+        ax.plot([0, 1], label=plot_text(name))
+    assert [t.get_text().lstrip("\u200b") for t in ax.legend().get_texts()] == ["_baseline", "C4N2"]
+    plt.close(fig)
 
 
 def test_median_errors_by_depth_hand_made():

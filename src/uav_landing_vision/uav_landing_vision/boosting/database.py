@@ -192,10 +192,11 @@ class PoseDatabase:
         if not path.is_file():
             what = "is a folder, not a file" if path.is_dir() else "not found"
             raise DatabaseError(f"pose database {path} {what}; make it with `uav-landing build-database`")
-        if not zipfile.is_zipfile(path):  # np.load would advise unpickling it
-            raise DatabaseError(f"pose database {path} is corrupt or not an .npz file; "
-                                "make it with `uav-landing build-database`")
         try:
+            with path.open("rb") as f:  # opened here: is_zipfile would take an unreadable file for a corrupt one
+                if not zipfile.is_zipfile(f):  # np.load would advise unpickling it
+                    raise DatabaseError(f"pose database {path} is corrupt or not an .npz file; "
+                                        "make it with `uav-landing build-database`")
             with np.load(path, allow_pickle=False) as z:
                 version = int(z["format_version"])
                 if version != FORMAT_VERSION:

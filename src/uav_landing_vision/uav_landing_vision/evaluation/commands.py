@@ -42,14 +42,14 @@ def _run(args) -> int:
     except ValueError as exc:
         raise SystemExit(f"uav-landing score: {exc}") from exc
     sequence = args.truth.resolve().name
+    doc = make_summary(sequence, len(errors["euclidean"]), {args.name: variant_summary(errors, ms)})
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    save_summary(args.json, doc)  # first: a report whose figure fails loses no figure of the summary
     if args.report_dir:
         print(write_report(args.report_dir, sequence, {args.name: errors}))
     else:
         for kind, columns, unit in (("translation", TRANSLATION_COLUMNS, "m"), ("rotation", ROTATION_COLUMNS, "deg")):
             print(format_table(statistics_table({args.name: errors}, columns), f"{sequence}: {kind} error ({unit})"))
         print(frames_scored({args.name: errors}))  # the tables leave the lost frames out: say how many
-    doc = make_summary(sequence, len(errors["euclidean"]), {args.name: variant_summary(errors, ms)})
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    save_summary(args.json, doc)
     print(f"wrote {args.json}")
     return 0

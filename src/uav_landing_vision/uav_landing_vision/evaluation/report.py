@@ -96,9 +96,11 @@ def write_table_csv(path, stats_by_column: dict[str, dict]) -> None:
 
 
 def plot_text(text: str) -> str:
-    """``text`` drawn as written: matplotlib reads a span between two ``$`` as TeX, and an
-    unknown command in a user's name (a variant, a bag) made the figure, and the report, fail."""
-    return str(text).replace("$", r"\$")
+    """``text`` drawn as written: matplotlib reads a span between two ``$`` as TeX (an unknown
+    command in a user's name, a variant or a bag, made the figure and the report fail) and
+    leaves a legend label that starts with ``_`` out (a zero-width space keeps it in)."""
+    text = str(text).replace("$", r"\$")
+    return "\u200b" + text if text.startswith("_") else text
 
 
 def plot_errors(path, errors_by_variant: dict[str, dict[str, np.ndarray]], columns, unit: str) -> None:
