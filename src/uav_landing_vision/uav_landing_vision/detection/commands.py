@@ -59,7 +59,7 @@ def register(sub) -> None:
     p = sub.add_parser("train-verifier", help="train the box verifier on crops mined with the detector, export ONNX")
     p.add_argument("--data", type=Path, nargs="+", required=True, help="dataset folder(s) of make-detection-data")
     p.add_argument("--out", type=Path, default=Path("out/verifier_train"),
-                   help="run folder (mined crops, checkpoints, log)")
+                   help="run folder (mined crops, checkpoints, log); a new one unless --resume")
     p.add_argument("--detector", default="detector.onnx", help="detector whose boxes are mined (shipped name or path)")
     p.add_argument("--mine-threshold", type=float, default=0.1, help="detector score down to which boxes are mined")
     p.add_argument("--epochs", type=int, default=6)
