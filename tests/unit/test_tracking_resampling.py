@@ -80,6 +80,37 @@ def test_optimal_keeps_heavy_particles_once_and_never_replicates(weights):
     assert res.weights[res.indices == 4][0] == pytest.approx(weights[4])
 
 
+def _exact_threshold(weights, size):
+    """Optimal resampling's c in exact arithmetic: the first k (weights descending) at which
+    keeping the k largest whole leaves the next one below 1/c."""
+    from fractions import Fraction
+
+    desc = sorted((Fraction(int(v)) for v in weights), reverse=True)
+    for k in range(size):
+        c = (size - k) / sum(desc[k:])
+        if c * desc[k] <= 1:
+            return c
+    raise AssertionError("no threshold")
+
+
+def test_optimal_returns_size_particles_and_keeps_those_above_the_exact_threshold():
+    """Integer weights with ties: in floating point c·desc[k] came out 1 + 2⁻⁵² at one k and
+    1 − 2⁻⁵³ at the next, no k passed both tests, and c = size was taken: 8 or 9 particles of
+    (7, 5, 0, 4, 3, 6, 3, 1, 6, 5, 1, 7, 1) came back for 10 (found by a mutation audit)."""
+    rng = np.random.default_rng(0)
+    cases = [(np.array([7, 5, 0, 4, 3, 6, 3, 1, 6, 5, 1, 7, 1]), 10)]
+    for _ in range(300):
+        weights = rng.integers(0, 9, size=int(rng.integers(3, 16)))
+        if np.count_nonzero(weights) > 1:
+            cases.append((weights, int(rng.integers(1, np.count_nonzero(weights)))))
+    for weights, size in cases:
+        c = _exact_threshold(weights, size)
+        above = {m for m, v in enumerate(weights) if c * int(v) > 1}
+        for seed in range(3):
+            res = resample("optimal", weights.astype(float), np.random.default_rng(seed), size=size)
+            assert len(res.indices) == size and above <= set(res.indices.tolist()), (weights, size)
+
+
 def test_optimal_at_full_size_keeps_every_positive_particle():
     w = np.array([0.5, 0.0, 0.2, 0.3])
     res = resample("optimal", w, np.random.default_rng(0))

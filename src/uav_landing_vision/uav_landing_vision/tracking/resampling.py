@@ -150,9 +150,11 @@ def optimal(weights, rng: np.random.Generator, size: int | None = None) -> Resam
     tail = np.cumsum(desc[::-1])[::-1]  # tail[k] = Σ_{j≥k} desc_j
     k = np.arange(size)
     c = (size - k) / tail[k]  # c if exactly the k largest are kept whole
-    previous = np.concatenate([[np.inf], desc])[k]  # desc[k − 1], ∞ for k = 0
-    valid = (c * desc[k] <= 1.0) & (c * previous >= 1.0)
-    c = c[np.argmax(valid)]
+    # The first k whose next weight is not kept whole (then the k before it are: c·desc[k−1] ≥ 1).
+    # Tested alone, with a round-off allowance: with tied weights both tests could fail at every
+    # k by an ulp, and argmax of all-False took k = 0 (fewer particles than size came back). At
+    # k = size − 1 the test holds, c·desc[k] = desc[k] / tail[k] ≤ 1.
+    c = c[np.argmax(c * desc[k] <= 1.0 + 1e-12)]
     keep = c * w >= 1.0
     probs = np.where(keep, 0.0, c * w)
     cdf = np.concatenate([[0.0], np.cumsum(probs)])
