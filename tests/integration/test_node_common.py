@@ -513,3 +513,59 @@ def test_diagnostics_report_counters_and_the_last_error(ros):
     values = {kv.key: kv.value for kv in status.values}
     assert status.level == DiagnosticStatus.WARN and "bad thing" in status.message
     assert (values["received"], values["dropped"], values["published"], values["last_error"]) == ("2", "1", "0", "bad thing")
+
+
+# Cases from a mutation audit: each fails on a mutant of the code that the tests above let pass.
+
+
+def test_stamp_cache_size_must_be_positive():
+    """Size 0 would evict every incomplete stamp at once: nothing could ever pair."""
+    with pytest.raises(ValueError, match="at least 1"):
+        StampCache(("image", "boxes"), size=0)
+
+
+def test_a_completing_message_still_hands_back_the_old_time_line():
+    """The entries evicted by a time-line restart come back even when the same message
+    completes its own stamp."""
+    cache = StampCache(("image", "boxes"), size=3, restart_behind_ns=100)
+    cache.add("image", 10, "i10")
+    cache.add("image", 1000, "i1000")
+    entry, evicted = cache.add("boxes", 10, "b10")
+    assert entry.items == {"image": "i10", "boxes": "b10"}
+    assert [e.stamp_ns for e in evicted] == [1000] and len(cache) == 0
+
+
+def test_pop_older_and_pop_newer_return_oldest_first_and_exclude_the_stamp():
+    cache = StampCache(("image", "boxes"), size=8)
+    for stamp in (30, 20, 50, 40):
+        cache.add("image", stamp, stamp)
+    assert [e.stamp_ns for e in cache.pop_older(40)] == [20, 30]
+    cache.add("image", 10, 10)
+    assert [e.stamp_ns for e in cache.pop_newer(10)] == [40, 50]
+    assert len(cache) == 1
+
+
+def test_pop_expired_takes_the_expired_and_every_older_entry(monkeypatch):
+    """Ages by the monotonic clock; the newest expired stamp and all older ones
+    go, oldest first; younger entries with newer stamps stay."""
+    from uav_landing_vision.nodes import sync
+
+    cache = StampCache(("image", "boxes"), size=8)
+    for stamp, since in ((10, 100.0), (20, 101.0), (30, 100.5), (40, 105.0), (50, 105.5)):
+        cache.add("image", stamp, stamp)
+        cache._entries[stamp].since = since
+    cache.add("boxes", 25, "b25")  # stamp 25 arrived just now: not expired, but older than 30
+    monkeypatch.setattr(sync.time, "monotonic", lambda: 106.0)
+    assert [e.stamp_ns for e in cache.pop_expired(2.0)] == [10, 20, 25, 30]
+    assert sorted(cache._entries) == [40, 50]
+    assert cache.pop_expired(2.0) == []
+
+
+def test_has_newer_looks_for_that_input_only_and_strictly_after():
+    """A newer entry holding only the other input does not supersede a frame."""
+    cache = StampCache(("image", "boxes"), size=8)
+    cache.add("boxes", 30, "b30")
+    cache.add("image", 20, "i20")
+    assert not cache.has_newer("image", 20)
+    cache.add("image", 40, "i40")
+    assert cache.has_newer("image", 20) and cache.has_newer("image", 39) and not cache.has_newer("image", 40)

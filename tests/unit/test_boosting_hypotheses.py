@@ -193,3 +193,110 @@ def test_a_uav_cut_by_the_frame_edge_gives_no_hypotheses(camera):
     frame, roi = shot(-8.9)  # half of it left of the frame
     assert roi[0] == 0 and gen.generate(frame, roi, count=25) is None
     renderer.release()
+
+
+# Cases from a mutation audit: each fails on a mutant of the code that the tests above let pass.
+
+
+def _database(camera, obbs, quats=None):
+    obbs = np.asarray(obbs, dtype=float)
+    if quats is None:
+        quats = np.tile([0.0, 0.0, 0.0, 1.0], (len(obbs), 1))
+    return PoseDatabase(quats, obbs, distance=4.0, camera=camera, model="test")
+
+
+def test_a_box_without_height_is_refused(camera):
+    db = _database(camera, [[0.0, camera.cx, camera.cy, 200.0, 50.0]])
+    with pytest.raises(ValueError, match="positive sides"):
+        hypotheses_from_obb(db, Obb(30.0, 100.0, 100.0, 50.0, 0.0), 1, camera)
+
+
+def test_the_turn_is_wrapped_to_the_nearer_of_the_two_box_directions(camera):
+    """Entry at 170°, observed at 10°: the box turned by +20° (not −160°, which flips the
+    UAV nose for tail and moves the centre offset to the other side)."""
+    db = _database(camera, [[170.0, camera.cx + 40.0, camera.cy, 200.0, 50.0]])
+    turn = np.radians(20.0)
+    offset = 40.0 * np.array([np.cos(turn), np.sin(turn)])  # the entry's (40, 0) offset turned by 20°
+    obs = Obb(10.0, camera.cx + offset[0], camera.cy + offset[1], 200.0, 50.0)
+    hyp = hypotheses_from_obb(db, obs, 1, camera)
+    np.testing.assert_allclose(hyp.positions[0], [0.0, 0.0, 4.0], atol=1e-6)
+    expected = Rotation.from_rotvec([0.0, 0.0, turn]).as_quat()
+    assert abs(np.dot(hyp.quats[0], expected)) == pytest.approx(1.0, abs=1e-9)
+
+
+def _generator_frame(camera, rows=slice(300, 340), cols=slice(500, 700)):
+    frame = np.full((camera.height, camera.width, 3), 200, np.uint8)
+    frame[rows, cols] = 60
+    return frame
+
+
+def _angle_db(camera):
+    return _database(camera, [[float(a), camera.cx, camera.cy, 300.0, 60.0] for a in range(0, 180, 2)])
+
+
+def test_no_hypotheses_within_fast_radius_of_the_top_or_bottom_edge(camera):
+    """As for the right edge in test_boosting_hypotheses: 3 px from an edge, none."""
+    gen = PoseHypothesisGenerator(_angle_db(camera), camera, HypothesisConfig(particles=40, kept=30))
+    top = _generator_frame(camera, rows=slice(10, 50))
+    assert gen.generate(top, (495, 3, 210, 52)) is None
+    assert len(gen.generate(top, (495, 4, 210, 52))) == 10
+    h = camera.height
+    bottom = _generator_frame(camera, rows=slice(h - 50, h - 10))
+    assert gen.generate(bottom, (495, h - 55, 210, 52)) is None  # 3 px above the bottom
+    assert len(gen.generate(bottom, (495, h - 56, 210, 52))) == 10
+
+
+def test_a_box_spanning_exactly_min_roi_cover_gives_hypotheses(camera):
+    """"less than this fraction": a box of exactly the fraction passes."""
+    frame = _generator_frame(camera)
+    roi = (472, 250, 256, 140)
+    w = PoseHypothesisGenerator(_angle_db(camera), camera, HypothesisConfig(min_roi_cover=0.0)).generate(frame, roi).obb.w
+    cover = w / 256.0
+    assert cover * 256.0 == w
+    gen = PoseHypothesisGenerator(_angle_db(camera), camera, HypothesisConfig(particles=40, kept=30, min_roi_cover=cover))
+    assert gen.generate(frame, roi) is not None
+
+
+def test_the_generator_honours_centre_offset_and_turn_orientation(camera):
+    """Both switches reach hypotheses_from_obb (the thesis's settings are False)."""
+    quat = Rotation.from_euler("xyz", [10, 20, 30], degrees=True).as_quat()
+    db = _database(camera, [[20.0, camera.cx + 40.0, camera.cy + 10.0, 200.0, 40.0]], [quat])
+    frame, roi = _generator_frame(camera), (450, 250, 300, 140)
+    for centre_offset in (True, False):
+        for turn in (True, False):
+            gen = PoseHypothesisGenerator(db, camera, HypothesisConfig(
+                particles=2, kept=1, centre_offset=centre_offset, turn_orientation=turn))
+            hyp = gen.generate(frame, roi, count=1)
+            ref = hypotheses_from_obb(db, hyp.obb, 1, camera, centre_offset, turn)
+            np.testing.assert_allclose(hyp.positions, ref.positions)
+            np.testing.assert_allclose(hyp.quats, ref.quats)
+    plain = PoseHypothesisGenerator(db, camera, HypothesisConfig(particles=2, kept=1, turn_orientation=False))
+    np.testing.assert_allclose(plain.generate(frame, roi, count=1).quats[0], quat, atol=1e-7)
+
+
+def test_the_roi_grows_by_margin_of_its_size_plus_pad(camera):
+    """A faint-free dark blob 20 px below the UAV's box lies outside the ROI grown by 10 % +
+    2 px, so it is not part of the box."""
+    frame = _generator_frame(camera)
+    frame[360:370, 590:610] = 60
+    gen = PoseHypothesisGenerator(_angle_db(camera), camera, HypothesisConfig(particles=40, kept=30))
+    box = gen.generate(frame, (500, 300, 200, 40), count=1).obb
+    assert box.h == pytest.approx(39.0, abs=1.0)
+
+
+def test_the_generator_validates_the_roi(camera):
+    """A ROI outside the image or with an infinite side is a ValueError, not a silent None
+    or an OverflowError."""
+    gen = PoseHypothesisGenerator(_angle_db(camera), camera, HypothesisConfig(particles=40, kept=30))
+    frame = _generator_frame(camera)
+    with pytest.raises(ValueError, match="outside"):
+        gen.generate(frame, (camera.width + 100, 10, 20, 20))
+    with pytest.raises(ValueError, match="four numbers"):
+        gen.generate(frame, (500, 300, 200, float("inf")))
+
+
+def test_a_distorted_camera_is_held_rectified(camera):
+    """Frames come rectified: the generator holds the rectified camera (only its intrinsics are used)."""
+    raw = load_camera_info_yaml(config_path("camera.yaml"))
+    assert raw.is_distorted
+    assert not PoseHypothesisGenerator(_angle_db(camera), raw).camera.is_distorted

@@ -7,10 +7,13 @@ import pytest
 from uav_landing_vision.boosting.obb import (
     FastConfig,
     aspect_ratio,
+    check_roi,
+    fast_corners,
     grow_roi,
     obb_from_frame,
     obb_from_mask,
     obb_from_points,
+    to_gray,
 )
 
 
@@ -246,3 +249,81 @@ def test_threshold_ladder_only_for_rois_up_to_its_size_limit():
 def test_fast_config_validation(kwargs):
     with pytest.raises(ValueError):
         FastConfig(**kwargs)
+
+
+# Cases from a mutation audit: each fails on a mutant of the code that the tests above let pass.
+
+
+def test_a_box_under_a_pixel_thick_is_degenerate():
+    """Not collinear, but 0.5 px thick: no box (its area, hence the depth (4.5), is meaningless)."""
+    assert obb_from_points(np.array([[0.0, 0.0], [100.0, 0.0], [50.0, 0.5]])) is None
+    assert obb_from_points(np.array([[0.0, 0.0], [100.0, 0.0], [50.0, 1.5]])) is not None
+
+
+def test_check_roi_rounds_and_clips_each_side():
+    """Fractional ROIs round; a ROI hanging off the left is clipped; one that only
+    touches the image's right edge is outside."""
+    assert check_roi((10.6, 20.4, 30.7, 40.2), 100, 100) == (11, 20, 31, 40)
+    assert check_roi((-5, 10, 30, 20), 100, 100) == (0, 10, 25, 20)
+    with pytest.raises(ValueError, match="outside"):
+        check_roi((100, 10, 20, 20), 100, 100)
+    with pytest.raises(ValueError, match="outside"):
+        obb_from_frame(np.zeros((100, 100), np.uint8), (100, 10, 20, 20))
+
+
+def test_grow_roi_refuses_negative_pad_and_grows_to_whole_pixels_outward():
+    """A fractional growth (2.25 px left and right, 0.5 px top and bottom) takes
+    in the whole pixel."""
+    with pytest.raises(ValueError, match="non-negative"):
+        grow_roi((100, 50, 40, 10), 0.0, -1.0, 640, 480)
+    assert grow_roi((100, 50, 45, 10), 0.05, 0.0, 640, 480) == (97, 49, 51, 12)
+
+
+def test_to_gray_weights_rgb_as_rgb():
+    """Frames are RGB (nodes/image.py): red weighs 0.299, blue 0.114."""
+    frame = np.zeros((1, 2, 3), np.uint8)
+    frame[0, 0] = (255, 0, 0)
+    frame[0, 1] = (0, 0, 255)
+    np.testing.assert_array_equal(to_gray(frame), [[76, 29]])
+
+
+def test_min_corners_is_a_least_count():
+    """Exactly ``min_corners`` corners give a box."""
+    frame = np.full((100, 100), 128, np.uint8)
+    frame[30:40, 30:40] = 250
+    n = len(fast_corners(frame[10:60, 10:60], 20))
+    assert obb_from_frame(frame, (10, 10, 50, 50), FastConfig(min_corners=n)) is not None
+    assert obb_from_frame(frame, (10, 10, 50, 50), FastConfig(min_corners=n + 1)) is None
+
+
+def _bar_and_blob(blob_cols):
+    frame = np.full((200, 300), 100, np.uint8)
+    frame[100:106, 50:150] = 200  # high contrast: threshold 20 finds it, spans 99 px
+    frame[60:70, blob_cols] = 112  # low contrast: threshold 8 only
+    return frame
+
+
+def test_ladder_ties_keep_the_higher_threshold():
+    """No threshold spans the ROI; both span 99 px: the first (highest) one's box, not the
+    one that also takes in a faint blob 35 px above the bar."""
+    frame = _bar_and_blob(slice(95, 105))
+    box = obb_from_frame(frame, (20, 40, 260, 100), FastConfig(thresholds=(20, 8), min_cover=1.0))
+    assert box.h < 10.0
+
+
+def test_ladder_stops_at_a_span_exactly_min_cover():
+    """"at least ``min_cover``": a span of exactly 0.5 × 198 px stops the ladder."""
+    frame = _bar_and_blob(slice(160, 170))
+    box = obb_from_frame(frame, (40, 50, 198, 70), FastConfig(thresholds=(20, 8), min_cover=0.5))
+    assert box == obb_from_frame(frame, (40, 50, 198, 70), FastConfig(thresholds=(20,)))
+    assert box.w < 101.0
+
+
+def test_threshold_ladder_measures_the_span_along_the_longer_axis():
+    """The near UAV of the ladder's test above, turned upright: the ladder still finds its wings."""
+    frame = np.full((200, 400), 120, np.uint8)
+    frame[96:104, 60:340] = 134
+    cv2.circle(frame, (200, 104), 12, 30, -1)
+    upright = np.ascontiguousarray(frame.T)
+    box = obb_from_frame(upright, (90, 60, 28, 280), FastConfig(thresholds=(20, 16, 12, 10, 8), min_cover=0.9), 0.10, 2.0)
+    assert box.w == pytest.approx(280.0, abs=4.0)

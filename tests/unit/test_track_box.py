@@ -87,3 +87,37 @@ def test_bad_settings_are_refused(kwargs, message):
 def test_a_pose_far_beyond_the_image_gives_no_box():
     for position in ([1e200, 0.0, 1.0], [-1e200, 0.0, 1.0], [0.0, 1e300, 1e-300]):
         assert projected_roi(CAMERA, VERTICES, QUAT, position) is None
+
+
+# Cases from a mutation audit: each fails on a mutant of the code that the tests above let pass.
+
+
+def test_track_box_grow_has_an_upper_bound():
+    with pytest.raises(ValueError, match="grow must be in"):
+        TrackBoxConfig(grow=2.5)
+
+
+@pytest.mark.parametrize("roi, grow, expected", [
+    ((100, 50, 43, 10), 0.25, (89, 48, 65, 14)),  # 10.75 px rounds to 11
+    ((10, 340, 20, 20), 0.5, (0, 330, 40, 30)),  # clipped at the bottom (360), not the width (640)
+])
+def test_track_box_grow_rounds_and_clips_by_height(roi, grow, expected):
+    assert grow_roi(roi, grow, 640, 360) == expected
+
+
+def test_frames_with_the_model_out_of_view_do_not_count_towards_the_limit():
+    box = TrackBox(TrackBoxConfig(max_frames=2), VERTICES)
+    box.set_pose(0, [-1.0, 0.5, -30.0], QUAT)  # behind the camera
+    assert [box.roi(CAMERA, FRAME_NS) for _ in range(3)] == [None] * 3
+    box.set_pose(0, [1.0, -0.5, 30.0], QUAT)
+    assert [box.roi(CAMERA, FRAME_NS) is not None for _ in range(3)] == [True, True, False]
+
+
+def test_track_box_on_the_right_of_a_wide_image_is_clipped_by_its_width():
+    """A box right of x = 360 in a 640 x 360 image."""
+    position = np.array([8.0, 0.0, 30.0])
+    roi = projected_roi(CAMERA, VERTICES, QUAT, position)
+    assert roi[0] > 360
+    box = TrackBox(TrackBoxConfig(), VERTICES)
+    box.set_pose(0, position, QUAT)
+    assert box.roi(CAMERA, FRAME_NS) == grow_roi(roi, 0.25, 640, 360)

@@ -260,3 +260,90 @@ def test_weights_whose_sum_overflows_still_resample():
 def test_metropolis_never_keeps_a_zero_weight_particle():
     w = np.eye(100)[37]  # one particle holds all the weight: no chain may stay on another
     np.testing.assert_array_equal(resample("metropolis", w, np.random.default_rng(0)).indices, np.full(100, 37))
+
+
+# Cases from a mutation audit: each fails on a mutant of the code that the tests above let pass.
+
+
+def test_multinomial_indices_are_ascending():
+    """As documented for every scheme but Metropolis."""
+    w = np.random.default_rng(1).random(50)
+    for seed in range(5):
+        idx = resample("multinomial", w, np.random.default_rng(seed)).indices
+        assert np.all(np.diff(idx) >= 0)
+
+
+def test_residual_draws_a_single_residual_copy():
+    """M·w = 1.2, 1.2, 0.6: one copy each from the floor, one more drawn."""
+    for seed in range(10):
+        assert len(resample("residual", [0.4, 0.4, 0.2], np.random.default_rng(seed)).indices) == 3
+
+
+def test_metropolis_needs_at_least_one_step():
+    """Zero steps would return every particle once: no resampling at all."""
+    with pytest.raises(ValueError, match="steps must be at least 1"):
+        resample("metropolis", np.ones(4), np.random.default_rng(0), steps=0)
+
+
+def test_optimal_refuses_size_zero_by_name():
+    with pytest.raises(ValueError, match="size must be at least 1"):
+        resample("optimal", np.ones(4), np.random.default_rng(0), size=0)
+
+
+def test_minimum_sampling_breaks_residual_ties_to_the_lower_index():
+    """64 particles, M·w in pairs (0.25, 1.75), (0.5, 1.5), (0.75, 1.25): 30 extra copies
+    go to the twenty residuals of 0.75 and the ten lowest-indexed of 0.5 (exact in binary)."""
+    pairs = np.random.default_rng(0).permutation(np.repeat([0, 1, 2], [11, 11, 10]))
+    mw = np.array([[0.25, 1.75], [0.5, 1.5], [0.75, 1.25]])[pairs].ravel()
+    counts = np.bincount(resample("minimum_sampling", mw, None).indices, minlength=64)
+    base = np.floor(mw)
+    extra = counts - base
+    frac = mw - base
+    half = np.flatnonzero(frac == 0.5)
+    assert counts.sum() == 64
+    assert np.all(extra[frac == 0.75] == 1) and np.all(extra[frac == 0.25] == 0)
+    np.testing.assert_array_equal(extra[half], (np.arange(len(half)) < 64 - base.sum() - np.sum(frac == 0.75)))
+
+
+def test_fixed_size_fills_with_equally_spaced_points():
+    """Four systematic points on (0.3, 0.3, 0.4) give each particle ⌊4w⌋ or ⌊4w⌋ + 1 copies
+    whatever the offset (particle 1 at least one); stratified points give it none one time in eight."""
+    few = rs.Resampled(np.array([0]), np.ones(1))
+    for seed in range(100):
+        idx = fixed_size(few, np.array([0.3, 0.3, 0.4]), np.random.default_rng(seed), 5)
+        extra = np.bincount(idx, minlength=3) - [1, 0, 0]
+        assert extra.sum() == 4 and np.all((extra >= [1, 1, 1]) & (extra <= [2, 2, 2])), extra
+
+
+def test_optimal_threshold_at_a_tied_weight():
+    """Weights (2, 2, 1, 2, 2, 0, 3, 3, 4, 4)/23 down to 7: c = 23/3 exactly (ℵ = 3/23, on
+    the two 3s): the 4s and 3s are kept, three of the others drawn, each carrying 3/23."""
+    w = np.array([2, 2, 1, 2, 2, 0, 3, 3, 4, 4], float)
+    for seed in range(20):
+        res = resample("optimal", w, np.random.default_rng(seed), size=7)
+        assert len(res.indices) == 7 and set(res.indices) >= {6, 7, 8, 9}
+        light = ~np.isin(res.indices, [6, 7, 8, 9])
+        np.testing.assert_allclose(res.weights[light], 3 / 23)
+        np.testing.assert_allclose(res.weights[~light], w[res.indices[~light]] / 23)
+
+
+def test_optimal_down_to_the_positive_count_keeps_every_positive_particle():
+    """``size`` equal to the number of positive weights keeps each once with its weight;
+    the general path, which it must not take, lost two of them to round-off with tied weights."""
+    w = np.array([3.0, 0.0, 3.0, 0.0, 3.0, 9.0, 10.0, 7.0, 0.0, 0.0, 8.0, 0.0, 6.0])
+    res = resample("optimal", w, np.random.default_rng(0), size=8)
+    np.testing.assert_array_equal(res.indices, np.flatnonzero(w))
+    np.testing.assert_allclose(res.weights, w[w > 0] / w.sum())
+
+
+class _ZeroRandom:
+    """A generator whose uniforms are all 0.0, the edge of [0, 1)."""
+
+    def random(self, size=None):
+        return 0.0 if size is None else np.zeros(size)
+
+
+@pytest.mark.parametrize("name", ["multinomial", "stratified", "systematic"])
+def test_a_uniform_of_zero_never_draws_a_zero_weight_particle(name):
+    """The CDF is inverted at u in (0, 1]: u = 0 would fall on particle 0 of weight 0."""
+    np.testing.assert_array_equal(resample(name, [0.0, 1.0], _ZeroRandom()).indices, [1, 1])

@@ -779,3 +779,24 @@ def test_rotation_window_averages_the_published_rotation_and_nothing_else(render
     assert len(tracker.window._recent) == 0
     with pytest.raises(ValueError, match="rotation_window"):
         TrackerConfig(rotation_window=0)
+
+
+# Cases from a mutation audit: each fails on a mutant of the code that the tests above let pass.
+
+
+@pytest.mark.parametrize("kwargs", [{"acquire_likelihood": 0.2, "lost_likelihood": 0.2},
+                                    {"acquire_frames": 0}, {"lost_frames": 0}])
+def test_track_state_config_refuses(kwargs):
+    """acquire_frames 0 would vouch for the first frame whatever it scores;
+    lost_frames 0 would drop every track at its first frame."""
+    with pytest.raises(ValueError):
+        TrackStateConfig(**kwargs)
+
+
+def test_lost_is_left_only_by_initialisation():
+    """Scores alone never take a LOST monitor to ACQUIRING or TRACKING."""
+    m = TrackMonitor(TrackStateConfig(acquire_likelihood=0.5, acquire_frames=2, lost_likelihood=0.1, lost_frames=3))
+    assert [m.update(0.9) for _ in range(4)] == [TrackState.LOST] * 4
+    assert m.update(0.05) == TrackState.LOST
+    m.initialised()
+    assert m.update(0.9) == TrackState.ACQUIRING
