@@ -159,7 +159,7 @@ class EvaluatorNode(LandingNode):
                         f"{' ...' if len(stamps) > 5 else ''}")
             self.get_logger().warn(unscored)
             appendix = f"{appendix}\n\n{unscored}"
-        out.mkdir(parents=True, exist_ok=True)  # the poses and figures first, the plots last
+        out.mkdir(parents=True, exist_ok=True)  # the poses and the summary first, the plots last
         write_pose_csv(out / "estimates.csv", estimates)
         save_summary(out / "summary.json", make_summary(cfg.sequence, len(truth.stamps_ns), {cfg.variant: variant_summary(errors)}))
         text = write_report(out, cfg.sequence, {cfg.variant: errors}, appendix=appendix)
