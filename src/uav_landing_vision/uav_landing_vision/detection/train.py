@@ -405,7 +405,7 @@ def load_checkpoint(cfg) -> dict:
     ckpt = Path(cfg.out) / "last.pt"
     if not ckpt.exists():
         raise FileNotFoundError(f"no checkpoint {ckpt}")
-    state = torch.load(ckpt, weights_only=False)
+    state = _checkpoint(ckpt)
     # Settings added since the checkpoint was written count as their defaults.
     saved, given = {**{f.name: f.default for f in fields(cfg)}, **state["config"]}, asdict(cfg)
     differ = [f"{k}: {saved.get(k)!r} there, {given.get(k)!r} here" for k in sorted(saved.keys() | given.keys())
