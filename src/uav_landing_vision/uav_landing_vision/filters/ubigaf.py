@@ -118,8 +118,8 @@ class UBiGaF:
         after 20, 8 rad/s after 60); right after an update ``G q̄`` is zero and nothing differs.
         The points' cross-moment is ``P_qω − q̄ (G q̄)ᵀ``, so across predictions without an update
         ``P_qω`` loses ``q̄ (G q̄)ᵀ`` each step (default settings: 0.1 % after 4 steps, 1.4 % after
-        10, 31 % after 20); regressing on ``P_q − q̄q̄ᵀ`` instead would keep it, but that matrix
-        is nearly singular along the mode.
+        10, 31 % after 20). Regressing on ``P_q − q̄q̄ᵀ`` instead would keep it; not done, since
+        the tracker updates every filter at every frame and predicts a few steps at most between.
         """
         f, m = np.linalg.eigh(p_q)
         f = np.maximum(f, 1e-15)
