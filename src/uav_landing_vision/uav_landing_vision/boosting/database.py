@@ -197,16 +197,17 @@ class PoseDatabase:
                 if not zipfile.is_zipfile(f):  # np.load would advise unpickling it
                     raise DatabaseError(f"pose database {path} is corrupt or not an .npz file; "
                                         "make it with `uav-landing build-database`")
-            with np.load(path, allow_pickle=False) as z:
-                version = int(z["format_version"])
-                if version != FORMAT_VERSION:
-                    raise DatabaseError(f"pose database {path} has format {version}, expected {FORMAT_VERSION}")
-                w, h = (int(v) for v in z["camera_size"])
-                db = cls(
-                    z["quats"], z["obbs"], distance=float(z["distance"]),
-                    camera=CameraModel(w, h, z["camera_K"]), model=str(z["model"]),
-                    half_range_deg=z["half_range_deg"], command=str(z["command"]), aspect_weight=aspect_weight,
-                )
+                f.seek(0)
+                with np.load(f, allow_pickle=False) as z:
+                    version = int(z["format_version"])
+                    if version != FORMAT_VERSION:
+                        raise DatabaseError(f"pose database {path} has format {version}, expected {FORMAT_VERSION}")
+                    w, h = (int(v) for v in z["camera_size"])
+                    db = cls(
+                        z["quats"], z["obbs"], distance=float(z["distance"]),
+                        camera=CameraModel(w, h, z["camera_K"]), model=str(z["model"]),
+                        half_range_deg=z["half_range_deg"], command=str(z["command"]), aspect_weight=aspect_weight,
+                    )
         except DatabaseError:
             raise
         except Exception as exc:  # zip, key and value errors of a damaged file
