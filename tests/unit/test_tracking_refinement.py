@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from uav_landing_vision.geometry import geodesic_angle
 from uav_landing_vision.tracking.optimisation import rotate_body
@@ -13,14 +14,15 @@ POS = np.array([1.0, -2.0, 40.0])
 
 
 class PeakAt:
-    """A likelihood peaked at ``target`` (σ 3°), recording the positions it was asked about."""
+    """A likelihood peaked at ``target`` (σ 3°), recording the poses it was asked about."""
 
     def __init__(self, target):
-        self.target, self.positions, self.calls = target, [], 0
+        self.target, self.positions, self.quats, self.calls = target, [], [], 0
 
     def __call__(self, particles):
         self.calls += 1
         self.positions.append(particles.pos.copy())
+        self.quats.append(particles.quat.copy())
         angle = np.degrees(geodesic_angle(particles.quat, self.target))
         return np.exp(-0.5 * (angle / 3.0) ** 2)
 
@@ -76,3 +78,17 @@ def test_refinement_config_is_validated(bad):
 
 def _one(quat):
     return ParticleSet.from_poses(POS[None], np.asarray(quat)[None])
+
+
+def test_each_refinement_stage_searches_about_the_best_rotation_found_so_far():
+    """Stage 2 (σ 0.5°) draws its candidates about stage 1's winner, not about the start."""
+    target = Rotation.from_euler("ZYX", [40.0, 10.0, -5.0], degrees=True).as_quat()
+    start = (Rotation.from_rotvec(np.radians([0.0, 25.0, 0.0])) * Rotation.from_quat(target)).as_quat()
+    score = PeakAt(target)
+    cfg = RotationRefinementConfig(candidates=200, sigma_deg=(15.0, 0.5))
+    RotationRefinement(cfg).refine(score, np.array([0.0, 0.0, 20.0]), start, np.random.default_rng(0))
+    first, second = score.quats
+    winner = first[int(np.argmax(score(ParticleSet.from_poses(np.zeros((len(first), 3)), first))))]
+    assert np.degrees(geodesic_angle(winner[None], start))[0] > 5.0  # stage 1 moved
+    spread = np.degrees(geodesic_angle(second, winner))
+    assert spread.max() < 4.0  # 200 draws of a 0.5° σ per axis, all about the winner

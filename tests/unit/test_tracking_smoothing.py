@@ -87,3 +87,27 @@ def test_estimates_further_apart_than_the_step_are_never_averaged():
     window = RotationWindow(3, 0.051)
     window(0, quats[0])
     np.testing.assert_array_equal(window(2 * DT_NS, quats[2]), quats[2])
+
+
+def test_estimates_exactly_the_step_apart_are_still_averaged():
+    """The window restarts after a gap of *more than* ``max_step_s`` (0.0625 s is exact in binary)."""
+    window = RotationWindow(2, 0.0625)
+    q = Rotation.from_rotvec([0.0, 0.0, 0.1]).as_quat()
+    p = Rotation.from_rotvec([0.0, 0.0, 0.2]).as_quat()
+    window(0, q)
+    assert close_rotations(window(62_500_000, p), Rotation.from_rotvec([0.0, 0.0, 0.15]).as_quat())
+    np.testing.assert_array_equal(window(62_500_000 + 62_500_001, q), q)  # one ns more: restarted
+
+
+def test_a_steady_turn_in_small_steps_never_restarts_the_window():
+    """The turn limit is between consecutive estimates: 6° a frame against a 10° limit keeps the
+    window full, though its oldest and newest estimates are 18° apart; the output is scipy's mean
+    of the last four."""
+    window = RotationWindow(4, 0.051, max_turn_deg=10.0)
+    axis = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
+    base = Rotation.from_euler("ZYX", [20.0, 5.0, -10.0], degrees=True)
+    rots = [Rotation.from_rotvec(axis * np.radians(6.0 * k)) * base for k in range(7)]
+    for k, r in enumerate(rots):
+        out = window(k * DT_NS, r.as_quat())
+        expected = Rotation.concatenate(rots[max(0, k - 3):k + 1]).mean()
+        assert close_rotations(out, expected.as_quat()), k
