@@ -63,3 +63,14 @@ def test_eval_metrics_refuses_bad_distance(tmp_path):
     with pytest.raises(SystemExit, match=r"at 10000 m the UAV spans 0.\d px, under 16: choose a smaller distance"):
         main(["eval-metrics", "--distance", "1e4", "--out", str(tmp_path / "far")])
     assert not (tmp_path / "far").exists()
+
+
+def test_eval_metrics_checks_the_span_before_making_the_frame(monkeypatch, tmp_path):
+    from uav_landing_vision.tracking import metric_sweep
+
+    def no_frame(*args):
+        raise AssertionError("the frame was made before the span check")
+
+    monkeypatch.setattr(metric_sweep, "sweep_frame", no_frame)
+    with pytest.raises(SystemExit, match="choose a smaller distance"):
+        main(["eval-metrics", "--distance", "1e4", "--out", str(tmp_path)])

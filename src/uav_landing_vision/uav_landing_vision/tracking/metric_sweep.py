@@ -95,16 +95,24 @@ def truth_value(test: SweepTest, distance: float = NOMINAL_DISTANCE_M) -> float:
     return distance if (test.kind, test.axis) == ("translation", 2) else 0.0
 
 
+def sweep_camera(background: str = "normal"):
+    """The rectified camera of the ``background`` scenario."""
+    from ..sim.config import load_scenario
+    from ..sim.simulate import scenario_camera
+
+    return scenario_camera(load_scenario(background)).rectified()
+
+
 def sweep_frame(background: str = "normal", distance: float = NOMINAL_DISTANCE_M, seed: int = 0):
     """Rectified camera and the simulator's RGB frame of the nominal pose over ``background``."""
     from ..sim.backgrounds import make_background
     from ..sim.config import load_scenario
-    from ..sim.simulate import generators, scenario_camera, sun_direction
+    from ..sim.simulate import generators, sun_direction
     from ..sim.synthesis import FrameSynthesizer
     from ..sim.trajectory import camera_mount
 
     scenario = load_scenario(background)
-    camera = scenario_camera(scenario).rectified()
+    camera = sweep_camera(background)
     rngs = generators(seed)
     with FrameSynthesizer(camera, scenario.imaging) as synth:
         sky = make_background(scenario.background, synth.render_camera, scenario.ship, rngs["background"])
@@ -126,10 +134,11 @@ def run_sweep(metrics=tuple(VARIANTS), distance: float = NOMINAL_DISTANCE_M, bac
 
     if not 0.5 < distance < np.inf:
         raise ValueError(f"distance must be finite and exceed 0.5 m, got {distance}")
-    camera, frame = sweep_frame(background, distance, seed)
-    if camera.fx * SPAN / distance < MIN_SPAN_PX:  # the curves would be noise (peaks at -180° at 10 km)
-        raise ValueError(f"at {distance:g} m the UAV spans {camera.fx * SPAN / distance:.1f} px, "
+    fx = sweep_camera(background).fx  # checked before the frame is made
+    if fx * SPAN / distance < MIN_SPAN_PX:  # the curves would be noise (peaks at -180° at 10 km)
+        raise ValueError(f"at {distance:g} m the UAV spans {fx * SPAN / distance:.1f} px, "
                          f"under {MIN_SPAN_PX}: choose a smaller distance")
+    camera, frame = sweep_frame(background, distance, seed)
     with Renderer(camera, fixed_wing_mesh("low"), tile=tile, max_batch=512) as renderer:
         scorers = {}
         for metric in metrics:
