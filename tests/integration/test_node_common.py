@@ -266,13 +266,15 @@ class _Probe(LandingNode):
 
 SCALARS = ["1e-3", "1.0e3", "1E3", "+.5e+2", "6.8523015e+5", ".5", "5.", "-.inf", ".NaN", "09", "1_000", "1:30",
            "0b11", "0o10", "0x10", "0X1F", "-0X10", "010", "+5", "-0", "12e", "yes", "Off", "2.5", "fast",
-           "nan", "inf", "-Infinity"]
+           "nan", "inf", "-Infinity", "y", "Y", "n", "N", "NO", "On", "oN", "yES", "tRue", "FALSE", "null", "Null",
+           "~", "2026-11-27", "2001-12-14t21:59:43.10-05:00"]
 
 
 def test_the_cli_reads_a_parameter_files_scalars_as_rcl_does(ros, tmp_path):
     """rcl's parser is the oracle: PyYAML's YAML 1.1 read 1e-3 as a string (so a tracker.yaml the
-    node took failed `uav-landing evaluate`) and 1_000 or 1:30 as integers, which rcl reads as strings.
-    (Left apart: y/n, null and dates, which both refuse as values, and numbers beyond a double.)"""
+    node took failed `uav-landing evaluate`) and 1_000 or 1:30 as integers, which rcl reads as strings;
+    y and n as strings, which rcl reads as booleans; null, ~ and dates as None and dates, which rcl
+    reads as strings. (Left apart: numbers beyond a double.)"""
     params = tmp_path / "scalars.yaml"
     params.write_text("scalars:\n  ros__parameters:\n" + "".join(f"    p{i}: {v}\n" for i, v in enumerate(SCALARS)))
     node = ros.add(Node("scalars", context=ros.context, automatically_declare_parameters_from_overrides=True,

@@ -84,3 +84,11 @@ def test_parameter_file_with_a_repeated_key_is_refused(tmp_path):
         load_node_parameters(path, "tracker")
     path.write_text("base: &b {count: 7, mode: a}\ntracker:\n  ros__parameters:\n    <<: *b\n    count: 8\n")
     assert load_node_parameters(path, "tracker") == {"count": 8, "mode": "a"}  # a merge key may be overridden
+
+
+def test_parameter_without_a_value_is_refused_as_rcl_refuses_it(tmp_path):
+    """rcl stops at ``key:`` with nothing after it ("No value"); PyYAML read None."""
+    path = tmp_path / "p.yaml"
+    path.write_text("tracker:\n  ros__parameters:\n    count: 7\n    mode:\n")
+    with pytest.raises(ConfigError, match="no value on line 4"):
+        load_node_parameters(path, "tracker")

@@ -67,11 +67,43 @@ def _rcl_int(loader, node) -> int:
 UniqueKeyLoader.add_constructor(_INT, _rcl_int)
 
 
+class ParameterFileLoader(UniqueKeyLoader):
+    """The loader of ROS 2 parameter files: every plain scalar as rcl reads it. Besides the
+    numbers, y and n are booleans too (each word lower case, capitalised or upper case), null,
+    ~ and dates are strings, and an empty value is an error. (Scenario and calibration files
+    keep YAML's empty values: an empty section there takes the defaults.)"""
+
+
+_BOOL = "tag:yaml.org,2002:bool"
+_NULL = "tag:yaml.org,2002:null"
+_RCL_WORDS = {"y": True, "yes": True, "true": True, "on": True, "n": False, "no": False, "false": False, "off": False}
+ParameterFileLoader.yaml_implicit_resolvers = {
+    first: [(tag, regexp) for tag, regexp in resolvers if tag not in (_BOOL, _NULL, "tag:yaml.org,2002:timestamp")]
+    for first, resolvers in UniqueKeyLoader.yaml_implicit_resolvers.items()
+}
+ParameterFileLoader.add_implicit_resolver(
+    _BOOL, re.compile("^(?:" + "|".join(f"{w}|{w.capitalize()}|{w.upper()}" for w in _RCL_WORDS) + ")$"),
+    list("yYnNtTfFoO"))
+ParameterFileLoader.add_implicit_resolver(_NULL, re.compile(r"^$"), [""])
+
+
+def _rcl_bool(loader, node) -> bool:
+    return _RCL_WORDS[loader.construct_scalar(node).lower()]
+
+
+def _no_value(loader, node):
+    raise yaml.constructor.ConstructorError(problem=f"no value on line {node.start_mark.line + 1}")
+
+
+ParameterFileLoader.add_constructor(_BOOL, _rcl_bool)
+ParameterFileLoader.add_constructor(_NULL, _no_value)
+
+
 def load_node_parameters(path, node: str) -> dict:
     """The ``ros__parameters`` mapping of ``node`` in a ROS 2 parameter file."""
     path = Path(path)
     try:
-        doc = yaml.load(path.read_bytes(), UniqueKeyLoader)  # bytes: an undecodable file is a YAMLError
+        doc = yaml.load(path.read_bytes(), ParameterFileLoader)  # bytes: an undecodable file is a YAMLError
     except (OSError, yaml.YAMLError) as exc:
         raise ConfigError(f"cannot read parameter file {path}: {exc}") from exc
     if not isinstance(doc, dict) or node not in doc:
