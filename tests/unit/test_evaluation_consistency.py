@@ -1,6 +1,9 @@
+"""Covariance coverage: error vectors, NEES and the per-depth counts, against hand-made cases."""
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
 
 from uav_landing_vision.evaluation.consistency import coverage_by_depth, error_vectors, format_coverage, nees
 
@@ -68,3 +71,80 @@ def test_coverage_bins_skip_lost_frames_and_check_their_input():
         coverage_by_depth(t, q, est, q, cov[:2])
     with pytest.raises(ValueError, match="level"):
         coverage_by_depth(t, q, est, q, cov, level=1.0)
+
+
+IDENTITY = [0.0, 0.0, 0.0, 1.0]
+
+
+def test_a_frame_missing_its_position_or_its_orientation_has_no_error_vector_at_all():
+    t = np.array([[0.0, 0.0, 10.0]] * 3)
+    q = np.tile(IDENTITY, (3, 1))
+    t_est = t + 0.1
+    q_est = Rotation.from_rotvec([0.0, 0.0, 0.1]).as_quat()[None].repeat(3, axis=0)
+    t_est[0] = [np.nan, 0.0, 10.0]  # no position
+    q_est[1] = np.nan  # no orientation
+    err = error_vectors(t, q, t_est, q_est)
+    assert np.all(np.isnan(err[:2]))
+    np.testing.assert_allclose(err[2], [-0.1, -0.1, -0.1, 0.0, 0.0, -0.1], atol=1e-12)
+
+
+def test_nees_refuses_a_covariance_that_is_not_positive_definite():
+    e = np.array([[1.0, 0.0, 0.0]] * 3)
+    indefinite = np.diag([1.0, 1.0, -1.0])  # its largest eigenvalue is positive
+    semi = np.diag([1.0, 1.0, 0.0])
+    good = np.diag([4.0, 1.0, 1.0])
+    out = nees(e, np.stack([indefinite, semi, good]))
+    assert np.isnan(out[0]) and np.isnan(out[1]) and out[2] == pytest.approx(0.25)
+
+
+def test_nees_judges_definiteness_on_the_whole_matrix_not_one_triangle():
+    """An asymmetric matrix whose lower triangle alone looks positive definite but whose
+    symmetric part is indefinite is no covariance."""
+    c = np.array([[1.0, 5.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    assert np.isnan(nees(np.array([[1.0, 0.0, 0.0]]), c[None])[0])
+
+
+def test_coverage_refuses_a_level_of_zero():
+    t = np.array([[0.0, 0.0, 5.0]])
+    q = np.array([IDENTITY])
+    with pytest.raises(ValueError, match="level"):
+        coverage_by_depth(t, q, t, q, np.eye(6)[None], level=0.0)
+
+
+def test_a_frame_counts_only_when_both_its_position_and_rotation_covariances_are_usable():
+    t = np.array([[0.0, 0.0, 5.0], [0.0, 0.0, 6.0]])
+    q = np.tile(IDENTITY, (2, 1))
+    cov = np.tile(np.eye(6) * 0.01, (2, 1, 1))
+    cov[0, :3, :3] = 0.0  # frame 0: the position's covariance is "unknown"
+    rows = coverage_by_depth(t, q, t, q, cov, bins=(0.0, 8.0, np.inf))
+    assert (rows[0]["frames"], rows[0]["position"], rows[0]["rotation"]) == (1, 1, 1)
+    assert (rows[-1]["frames"], rows[-1]["position"], rows[-1]["rotation"]) == (1, 1, 1)
+
+
+def test_coverage_bins_frames_by_their_true_depth_not_their_range():
+    """Depth is the camera-frame z of the true position: a UAV 5 m ahead and 30 m to the side is
+    in the 0–8 m bin."""
+    t = np.array([[30.0, 0.0, 5.0], [0.0, 40.0, 20.0]])
+    q = np.tile(IDENTITY, (2, 1))
+    rows = coverage_by_depth(t, q, t, q, np.tile(np.eye(6), (2, 1, 1)))
+    by_bin = {r["depth_m"]: r["frames"] for r in rows}
+    assert by_bin[(0.0, 8.0)] == 1 and by_bin[(15.0, 30.0)] == 1 and by_bin[(30.0, 60.0)] == 0
+
+
+def test_coverage_counts_position_and_rotation_at_the_chi_square_quantile():
+    """An error at a NEES just inside / just outside the 3-DoF 95 % quantile."""
+    limit = chi2.ppf(0.95, 3)
+    t = np.zeros((2, 3)) + [0.0, 0.0, 10.0]
+    q = np.tile(IDENTITY, (2, 1))
+    t_est = t.copy()
+    t_est[:, 0] -= [np.sqrt(limit) * 0.999, np.sqrt(limit) * 1.001]  # truth − estimate along x, σ = 1
+    rows = coverage_by_depth(t, q, t_est, q, np.tile(np.eye(6), (2, 1, 1)))
+    assert (rows[-1]["frames"], rows[-1]["position"], rows[-1]["rotation"]) == (2, 1, 2)
+
+
+def test_coverage_table_prints_position_then_rotation():
+    rows = [{"depth_m": (0.0, 8.0), "frames": 4, "position": 1, "rotation": 3},
+            {"depth_m": None, "frames": 4, "position": 1, "rotation": 3}]
+    lines = format_coverage({"C4N2": rows}, "seq").splitlines()
+    assert lines[2].split() == ["0-8", "m", "1/4", "|", "3/4"]
+    assert lines[3].split() == ["all", "1/4", "|", "3/4"]

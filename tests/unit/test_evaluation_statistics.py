@@ -1,10 +1,12 @@
-"""Error statistics against direct numpy computations and hand-made cases."""
+"""Error statistics, scoring, lost frames and the JSON summary against direct numpy computations,
+scipy and hand-made cases."""
 
 import json
 
 import numpy as np
 import pytest
 from matplotlib.cbook import boxplot_stats
+from scipy.spatial.transform import Rotation
 
 from uav_landing_vision.evaluation import (
     STAT_KEYS,
@@ -20,11 +22,13 @@ from uav_landing_vision.evaluation import (
     pose_errors,
     save_summary,
     score,
+    score_files,
     statistics_table,
     validate_summary,
     variant_summary,
     write_report,
 )
+from uav_landing_vision.evaluation.report import lost_frames_pct
 from uav_landing_vision.geometry import euler_zyx_to_quat
 from uav_landing_vision.sim import Poses
 
@@ -290,3 +294,219 @@ def test_pose_errors_and_statistics_match_scipy():
     depth = np.array([0.0, 7.999, 8.0, 15.0, 29.99, 30.0, 60.0, 1e9])
     assert [depth[m].tolist() for _, m in depth_bins(depth)] == [
         [0.0, 7.999], [8.0], [15.0, 29.99], [30.0], [60.0, 1e9], depth.tolist()]  # bins are [lo, hi)
+
+
+# --- scoring, lost frames and the summary, case by case -------------------------------------------
+
+IDENTITY = [0.0, 0.0, 0.0, 1.0]
+
+
+def _summary_doc():
+    err = pose_errors(np.zeros((3, 3)), np.tile(IDENTITY, (3, 1)), np.ones((3, 3)), np.tile(IDENTITY, (3, 1)))
+    return make_summary("seq", 3, {"C4N2": variant_summary(err, 10.0)})
+
+
+# --- score -----------------------------------------------------------------------------------
+
+
+def test_score_refuses_a_ground_truth_without_a_finite_orientation():
+    """A ground-truth pose whose quaternion is not finite is no reference: it is refused, not
+    counted as a frame the tracker lost."""
+    quat = np.tile(IDENTITY, (3, 1))
+    bad = quat.copy()
+    bad[1] = [np.nan, 0.0, 0.0, 1.0]
+    truth = Poses(np.array([10, 20, 30]), np.zeros((3, 3)), bad)
+    with pytest.raises(ValueError, match=r"the ground truth has no usable pose .* at stamp\(s\) \[20\]"):
+        score(truth, Poses(truth.stamps_ns, np.zeros((3, 3)), quat))
+    bad[1] = [np.inf, 0.0, 0.0, 1.0]
+    with pytest.raises(ValueError, match=r"the ground truth has no usable pose .* at stamp\(s\) \[20\]"):
+        score(Poses(truth.stamps_ns, np.zeros((3, 3)), bad), Poses(truth.stamps_ns, np.zeros((3, 3)), quat))
+
+
+def test_score_of_an_empty_ground_truth_has_no_frames():
+    """No ground-truth frame: no per-frame error, whatever the estimate holds."""
+    est = Poses(np.array([10, 20]), np.zeros((2, 3)), np.tile(IDENTITY, (2, 1)))
+    err = score(Poses(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 4))), est)
+    assert all(v.shape == (0,) for v in err.values())
+
+
+def test_score_files_returns_the_mean_time_per_frame_of_an_estimate_csv(tmp_path):
+    (tmp_path / "truth.csv").write_text("stamp_ns,x,y,z,qx,qy,qz,qw\n10,0,0,5,0,0,0,1\n20,0,0,6,0,0,0,1\n")
+    (tmp_path / "est.csv").write_text("stamp_ns,x,y,z,qx,qy,qz,qw,ms\n10,0,0,5.5,0,0,0,1,10\n20,0,0,6,0,0,0,1,30\n")
+    err, ms = score_files(tmp_path / "truth.csv", tmp_path / "est.csv")
+    assert ms == pytest.approx(20.0)
+    np.testing.assert_allclose(err["euclidean"], [0.5, 0.0])
+
+
+def test_score_files_reads_the_estimate_of_a_bag_from_the_uav_pose_topic_by_default(tmp_path):
+    """One bag holding the ground truth (/uav/ground_truth) and the tracker's output (/uav/pose):
+    without a topic, the estimate is /uav/pose, not the ground truth scored against itself."""
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    m = ts.types
+
+    def pose_msg(stamp_ns, z):
+        header = m["std_msgs/msg/Header"](stamp=m["builtin_interfaces/msg/Time"](sec=0, nanosec=stamp_ns),
+                                          frame_id="camera")
+        pose = m["geometry_msgs/msg/Pose"](position=m["geometry_msgs/msg/Point"](x=0.0, y=0.0, z=z),
+                                           orientation=m["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0))
+        return m["geometry_msgs/msg/PoseStamped"](header=header, pose=pose)
+
+    bag = tmp_path / "run"
+    with Writer(bag, version=9) as writer:
+        conns = {t: writer.add_connection(t, "geometry_msgs/msg/PoseStamped", typestore=ts)
+                 for t in ("/uav/ground_truth", "/uav/pose")}
+        for k, stamp in enumerate((1000, 2000)):
+            writer.write(conns["/uav/ground_truth"], stamp, ts.serialize_cdr(pose_msg(stamp, 10.0 + k), "geometry_msgs/msg/PoseStamped"))
+            writer.write(conns["/uav/pose"], stamp, ts.serialize_cdr(pose_msg(stamp, 10.5 + k), "geometry_msgs/msg/PoseStamped"))
+    err, ms = score_files(bag, bag)
+    np.testing.assert_allclose(err["z"], [0.5, 0.5])
+    assert ms is None  # a bag holds no times
+
+
+# --- per-frame errors and statistics -----------------------------------------------------------
+
+
+def test_pose_errors_give_each_signed_coordinate_difference_its_own_column():
+    t_true = np.array([[1.0, 2.0, 3.0]])
+    t_est = np.array([[1.5, 4.0, 2.0]])
+    err = pose_errors(t_true, np.array([IDENTITY]), t_est, np.array([IDENTITY]))
+    assert (err["x"][0], err["y"][0], err["z"][0]) == pytest.approx((0.5, 2.0, -1.0))
+    assert err["euclidean"][0] == pytest.approx(np.sqrt(0.25 + 4.0 + 1.0))
+
+
+def test_an_orientation_with_one_missing_component_is_lost_in_every_column():
+    q = np.tile(IDENTITY, (2, 1))
+    q_est = q.copy()
+    q_est[0] = [0.0, np.nan, 0.0, 1.0]
+    err = pose_errors(np.zeros((2, 3)), q, np.ones((2, 3)), q_est)
+    assert all(np.isnan(err[c][0]) and np.isfinite(err[c][1]) for c in err)
+
+
+def test_outlier_share_is_over_the_scored_values_not_the_lost_ones():
+    """Tukey's fences over the finite values: one outlier of five is 20 %, however many NaNs
+    (lost frames) the series also holds."""
+    values = [1.0, 2.0, 3.0, 4.0, 100.0]
+    assert error_statistics(values + [np.nan] * 5)["outlier_pct"] == pytest.approx(20.0)
+    assert error_statistics(values + [np.nan] * 5) == error_statistics(values)
+
+
+def test_a_one_column_table_is_named_by_the_variant_alone_and_several_by_variant_and_axis():
+    err = pose_errors(np.zeros((2, 3)), np.tile(IDENTITY, (2, 1)), np.ones((2, 3)), np.tile(IDENTITY, (2, 1)))
+    errs = {"C4N2": err, "C5N5": err}
+    assert list(statistics_table(errs, ("euclidean",))) == ["C4N2", "C5N5"]
+    assert list(statistics_table(errs, ("euclidean", "x"))) == ["C4N2 Euclidean", "C4N2 X", "C5N5 Euclidean", "C5N5 X"]
+
+
+# --- lost frames ---------------------------------------------------------------------------
+
+
+def test_a_frame_without_either_error_counts_as_lost():
+    """Lost: no translation error or no rotation error (either one missing is enough)."""
+    errors = {"euclidean": np.array([1.0, np.nan, 1.0, np.nan]), "geodesic": np.array([2.0, 2.0, np.nan, np.nan])}
+    assert lost_frames_pct(errors) == pytest.approx(75.0)
+    assert variant_summary(errors)["lost_frames_pct"] == pytest.approx(75.0)
+
+
+def test_no_frames_means_no_lost_frames_and_the_summary_is_still_written(tmp_path):
+    empty = pose_errors(np.zeros((0, 3)), np.zeros((0, 4)), np.zeros((0, 3)), np.zeros((0, 4)))
+    assert lost_frames_pct(empty) == 0.0
+    save_summary(tmp_path / "s.json", make_summary("seq", 0, {"C4N2": variant_summary(empty)}))
+    assert json.loads((tmp_path / "s.json").read_text())["variants"]["C4N2"]["lost_frames_pct"] == 0.0
+
+
+def test_median_by_depth_leaves_out_a_frame_without_a_rotation_error():
+    depth = np.array([5.0, 6.0, 7.0])
+    err = {"euclidean": np.array([0.1, 0.2, 9.0]), "geodesic": np.array([1.0, 3.0, np.nan])}
+    text = format_errors_by_depth({"C4N2": err}, depth, "seq", bins=(0.0, 8.0, np.inf))
+    row = next(line for line in text.splitlines() if line.startswith("0-8 m"))
+    assert row[16:].strip() == "0.15 | 2.00 (2)"
+
+
+# --- JSON summary ------------------------------------------------------------------------------
+
+
+def test_the_summary_rotation_is_the_geodesic_error():
+    """rotation_deg: the geodesic angle (3.3), not one Euler component."""
+    q_est = Rotation.from_euler("ZYX", [[0.0, 0.0, 10.0], [0.0, 0.0, 20.0], [0.0, 0.0, 30.0]], degrees=True).as_quat()
+    err = pose_errors(np.zeros((3, 3)), np.tile(IDENTITY, (3, 1)), np.zeros((3, 3)), q_est)
+    summary = variant_summary(err)
+    assert summary["rotation_deg"]["median"] == pytest.approx(20.0)
+    assert summary["rotation_deg"]["mae"] == pytest.approx(20.0)
+
+
+def test_the_summary_carries_the_time_per_frame_given():
+    err = pose_errors(np.zeros((1, 3)), np.array([IDENTITY]), np.ones((1, 3)), np.array([IDENTITY]))
+    assert variant_summary(err, 12.5)["ms_per_frame"] == 12.5
+    assert variant_summary(err)["ms_per_frame"] is None
+
+
+@pytest.mark.parametrize("change", [
+    lambda d: d.update(sequence=5),
+    lambda d: d.update(variants=[]),
+    lambda d: d["variants"]["C4N2"].update(lost_frames_pct="5"),
+    lambda d: d["variants"]["C4N2"].update(lost_frames_pct=5),
+    lambda d: d["variants"]["C4N2"].update(extra=1.0),
+], ids=["sequence-not-str", "variants-not-mapping", "lost-str", "lost-int", "extra-variant-key"])
+def test_a_summary_off_the_schema_is_refused(change):
+    bad = json.loads(json.dumps(_summary_doc()))
+    validate_summary(json.loads(json.dumps(bad)))  # valid before the change
+    change(bad)
+    with pytest.raises(SummaryError):
+        validate_summary(bad)
+
+
+def test_save_summary_refuses_a_document_off_the_schema_and_writes_nothing(tmp_path):
+    bad = _summary_doc()
+    bad["variants"]["C4N2"]["lost_frames_pct"] = "none"
+    with pytest.raises(SummaryError):
+        save_summary(tmp_path / "s.json", bad)
+    assert not (tmp_path / "s.json").exists()
+
+
+def test_strict_json_writes_every_non_finite_float_as_null_in_mappings_lists_and_tuples():
+    from uav_landing_vision.evaluation.report import strict_json
+
+    doc = {"a": float("nan"), "b": (1.5, float("inf")), "c": [float("-inf"), {"d": float("nan")}], "e": 2}
+    assert json.loads(strict_json(doc)) == {"a": None, "b": [1.5, None], "c": [None, {"d": None}], "e": 2}
+
+
+# --- report files ------------------------------------------------------------------------------
+
+
+def test_write_report_ends_the_tables_with_the_appendix(tmp_path):
+    from uav_landing_vision.evaluation import write_report
+
+    err = pose_errors(np.zeros((4, 3)), np.tile(IDENTITY, (4, 1)), np.ones((4, 3)), np.tile(IDENTITY, (4, 1)))
+    text = write_report(tmp_path, "seq", {"C4N2": err}, appendix="coverage table here")
+    assert text.endswith("coverage table here")
+    assert (tmp_path / "tables.txt").read_text().rstrip().endswith("coverage table here")
+
+
+def test_plots_leave_out_errors_beyond_the_limit_on_either_side_and_say_how_many(monkeypatch, tmp_path):
+    import matplotlib.figure
+
+    from uav_landing_vision.evaluation import plot_errors
+
+    drawn = {}
+
+    def record(fig, path, *args, **kwargs):
+        ax = fig.axes[0]
+        drawn["title"] = ax.get_title()
+        drawn["y"] = np.asarray(ax.lines[0].get_ydata(), float)
+
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", record)
+    plot_errors(tmp_path / "t.png", {"C4N2": {"x": np.array([1e7, -1e7, 2.0, -3.0])}}, ("x",), "m")
+    assert "(2 beyond" in drawn["title"]
+    np.testing.assert_array_equal(np.isnan(drawn["y"]), [True, True, False, False])
+
+
+@pytest.mark.parametrize("text", ["5", "null", "[1, 2]"])
+def test_a_summary_file_that_is_not_an_object_is_refused_as_off_the_schema(tmp_path, text):
+    from uav_landing_vision.evaluation import load_summary
+
+    (tmp_path / "s.json").write_text(text)
+    with pytest.raises(SummaryError):
+        load_summary(tmp_path / "s.json")

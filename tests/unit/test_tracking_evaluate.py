@@ -1,7 +1,11 @@
-"""``uav-landing evaluate`` on a short simulated approach: accuracy, determinism, ROI sources, outputs."""
+"""``uav-landing evaluate`` on a short simulated approach: accuracy, determinism, ROI sources, outputs;
+its bookkeeping (which frames are scored, errors, lost frames, stage times, tables, summary, the
+command's options) against a stand-in tracker of known outputs."""
 
+import importlib
 import json
 from dataclasses import replace
+from types import SimpleNamespace
 
 import cv2
 import numpy as np
@@ -12,19 +16,23 @@ from scipy.spatial.transform import Rotation
 
 from uav_landing_vision import resources
 from uav_landing_vision.cli import main
-from uav_landing_vision.evaluation import load_summary
+from uav_landing_vision.evaluation import load_summary, pose_errors
 from uav_landing_vision.model import fixed_wing_mesh
 from uav_landing_vision.render.boxes import projected_roi
 from uav_landing_vision.resources import config_path
 from uav_landing_vision.sim import load_scenario, read_camera, read_poses, simulate
 from uav_landing_vision.tracking.evaluate import (
+    SHARED_STAGES,
     EvaluationError,
+    EvaluationResult,
     evaluate_bag,
     format_results,
     parse_variants,
+    sequence_label,
     summary,
 )
-from uav_landing_vision.tracking.upf import Tracker, load_tracker_config
+from uav_landing_vision.tracking.track_state import TrackState
+from uav_landing_vision.tracking.upf import STAGES, Tracker, TrackResult, load_tracker_config
 
 FRAMES = 12
 
@@ -298,3 +306,200 @@ def test_a_frame_stamped_no_later_than_the_one_before_is_refused_naming_the_bag(
               "--frames", "4"])
     assert str(refused.value) == (f"uav-landing evaluate: {repeated}: frame 2 is stamped {stamps[1]} ns, not after "
                                   f"frame 1 ({stamps[1]} ns): a recording's frames must have increasing header stamps")
+
+
+# --- the bookkeeping of a run, with a stand-in tracker of known outputs ----------------------------
+
+OFFSET = np.array([0.3, 0.4, 0.0])  # estimate − truth: 0.5 m
+TILT = Rotation.from_euler("y", 2.0, degrees=True)  # q_e = q_true ⊗ q̄_est: 2° about y
+LOST_STATE, NO_POSE = 2, 3  # frames (bag index) the stand-in tracker reports LOST / gives no pose
+evaluate = importlib.import_module("uav_landing_vision.tracking.evaluate")
+
+
+def _stand_in_tracker(truth):
+    """A tracker whose estimate at bag frame i is the truth moved by OFFSET and turned by TILT,
+    reported LOST at LOST_STATE and without a pose at NO_POSE; its covariance names its variant."""
+    index = {int(s): i for i, s in enumerate(truth.stamps_ns)}
+
+    class StandIn:
+        def __init__(self, config, camera, renderer):
+            self.scale = float(config.variant[1:]) + config.iterations / 10.0
+
+        def step(self, frame, stamp_ns, hypotheses=None):
+            i = index[int(stamp_ns)]
+            position = truth.trans[i] + OFFSET
+            quat = (TILT.inv() * Rotation.from_quat(truth.quat[i])).as_quat()
+            state = TrackState.LOST if i == LOST_STATE else TrackState.TRACKING
+            if i == NO_POSE:
+                position, quat, state = np.full(3, np.nan), np.full(4, np.nan), TrackState.ACQUIRING
+            return TrackResult(int(stamp_ns), state, position, quat, np.eye(6) * self.scale, 1.0, 1.0,
+                               {s: 1.0 for s in STAGES})
+
+    return StandIn
+
+
+def _clock():
+    """perf_counter that advances one second per call: every timed span is a known 1000 ms."""
+    now = [0.0]
+
+    def perf_counter():
+        now[0] += 1.0
+        return now[0]
+
+    return SimpleNamespace(perf_counter=perf_counter)
+
+
+def test_each_frame_is_scored_against_its_own_truth_and_lost_states_count_as_lost(bag, monkeypatch):
+    truth = read_poses(bag)
+    monkeypatch.setattr(evaluate, "Tracker", _stand_in_tracker(truth))
+    result = evaluate_bag(bag, ["C1N0", "C4N2"], particles=30, roi_source="oracle", progress=False)
+    scored = np.array([i not in (LOST_STATE, NO_POSE) for i in range(FRAMES)])
+    for name, scale in (("C1N0", 1.0), ("C4N2", 4.2)):
+        err = result.errors[name]
+        assert all(np.all(np.isnan(err[c][~scored])) for c in err)  # LOST or no pose: no error at all
+        np.testing.assert_allclose(err["x"][scored], 0.3, atol=1e-9)  # signed t̂ − t
+        np.testing.assert_allclose(err["y"][scored], 0.4, atol=1e-9)
+        np.testing.assert_allclose(err["euclidean"][scored], 0.5, atol=1e-9)
+        np.testing.assert_allclose(err["geodesic"][scored], 2.0, atol=1e-9)
+        np.testing.assert_allclose(err["beta"][scored], 2.0, atol=1e-9)
+        np.testing.assert_allclose(err["alpha"][scored], 0.0, atol=1e-9)
+        assert np.all(np.isnan(result.estimates[name][0][~scored]))
+        cov = result.covariances[name]
+        np.testing.assert_array_equal(cov[scored], np.tile(np.eye(6) * scale, (scored.sum(), 1, 1)))
+        assert np.all(np.isnan(cov[~scored]))
+        assert summary(result)["variants"][name]["lost_frames_pct"] == pytest.approx(100.0 * 2 / FRAMES)
+        assert result.states[name][LOST_STATE] == int(TrackState.LOST)
+
+
+def test_stage_times_are_means_over_the_tracked_frames_and_ms_per_frame_is_boosting_plus_tracker(bag, monkeypatch):
+    truth = read_poses(bag)
+    monkeypatch.setattr(evaluate, "Tracker", _stand_in_tracker(truth))
+    monkeypatch.setattr(evaluate, "time", _clock())
+    result = evaluate_bag(bag, ["C4N2"], particles=30, roi_source="oracle", progress=False, stride=2)
+    assert result.frames == FRAMES // 2
+    stage_ms = result.stage_ms["C4N2"]
+    assert {s: stage_ms[s] for s in SHARED_STAGES} == pytest.approx({s: 1000.0 for s in SHARED_STAGES})
+    assert {s: stage_ms[s] for s in STAGES} == pytest.approx({s: 1.0 for s in STAGES})
+    assert result.ms_per_frame["C4N2"] == pytest.approx(1000.0 + len(STAGES))
+
+
+def test_boosting_time_includes_each_variants_own_boosting_where_the_detector_found_nothing(bag, monkeypatch):
+    truth = read_poses(bag)
+    monkeypatch.setattr(evaluate, "Tracker", _stand_in_tracker(truth))
+    monkeypatch.setattr(evaluate, "time", _clock())
+    found = 2
+    camera, vertices = read_camera(bag).rectified(), fixed_wing_mesh("high").vertices
+    monkeypatch.setattr(evaluate, "detector_rois", lambda cam: lambda frame, k: (
+        projected_roi(camera, vertices, truth.quat[k], truth.trans[k]) if k < found else None))
+    result = evaluate_bag(bag, ["C4N2"], particles=30, frames=4, progress=False)
+    # shared boosting 1000 ms every frame, plus the variant's own 1000 ms on the 2 frames of 4 without a detection
+    assert result.stage_ms["C4N2"]["boosting"] == pytest.approx(1000.0 + 1000.0 * 2 / 4)
+
+
+def test_empty_entries_of_a_variant_list_are_skipped():
+    assert parse_variants("C1N0,,C4N2, ,") == ["C1N0", "C4N2"]
+
+
+def test_a_start_beyond_the_bag_has_no_frames(bag):
+    with pytest.raises(EvaluationError, match="no frames"):
+        evaluate_bag(bag, ["C1N0"], particles=30, roi_source="oracle", start=FRAMES + 5, progress=False)
+
+
+def test_an_unknown_roi_source_is_refused_before_the_bag_is_read(tmp_path):
+    with pytest.raises(EvaluationError, match="roi source must be one of"):
+        evaluate_bag(tmp_path / "no_such_bag", ["C1N0"], roi_source="ground_truth", progress=False)
+
+
+# --- tables and summary of a result with known errors ------------------------------------------
+
+
+def _result(stride: int = 1) -> EvaluationResult:
+    """Four frames at true depths 5, 6, 25 and 40 m (frame 2 far to the side: x = 50 m); the
+    estimate 0.5 m and 2° off, lost at frame 3."""
+    t = np.array([[0.0, 0.0, 5.0], [0.0, 0.0, 6.0], [50.0, 0.0, 25.0], [0.0, 0.0, 40.0]])
+    q = np.tile([0.0, 0.0, 0.0, 1.0], (4, 1))
+    t_est = t + OFFSET
+    q_est = np.tile((TILT.inv()).as_quat(), (4, 1))
+    t_est[3], q_est[3] = np.nan, np.nan
+    cov = np.tile(np.eye(6), (4, 1, 1))
+    cov[3] = np.nan
+    stage_ms = {s: 7.0 if s == "boosting" else 1.0 for s in SHARED_STAGES + STAGES}
+    return EvaluationResult("seq", "oracle", 4, {"C4N2": (t_est, q_est)}, {"C4N2": pose_errors(t, q, t_est, q_est)},
+                            (t, q), {"C4N2": cov}, {"C4N2": stage_ms}, {"C4N2": 42.0},
+                            {"C4N2": np.array([2, 2, 2, 0])}, stride)
+
+
+def _row(part: str, name: str) -> list[str]:
+    return next(line for line in part.splitlines() if line.startswith(name))[16:].split()
+
+
+def test_results_tables_give_euclidean_translation_and_geodesic_rotation_medians():
+    parts = format_results(_result()).split("\n\n")
+    assert "translation error (m)" in parts[0] and _row(parts[0], "Median") == ["0.50"]
+    assert "rotation error (deg)" in parts[1] and _row(parts[1], "Median") == ["2.00"]
+
+
+def test_results_bin_the_median_errors_by_the_true_z_depth():
+    by_depth = format_results(_result()).split("\n\n")[2]
+    assert _row(by_depth, "0-8 m") == ["0.50", "|", "2.00", "(2)"]
+    assert _row(by_depth, "15-30 m") == ["0.50", "|", "2.00", "(1)"]
+    assert _row(by_depth, "30-60 m") == ["-", "(0)"]  # the lost frame
+
+
+def test_results_print_the_lost_share_in_percent_and_the_ms_per_frame_of_the_variant():
+    timing = format_results(_result()).split("\n\n")[3]
+    assert _row(timing, "Lost %") == ["25.00"]
+    assert _row(timing, "ms/frame") == ["42.0"]
+    assert _row(timing, "boosting") == ["7.0"]
+
+
+def test_summary_carries_the_ms_per_frame_and_the_label_says_any_stride_but_one():
+    doc = summary(_result())
+    assert doc["variants"]["C4N2"]["ms_per_frame"] == 42.0
+    assert doc["variants"]["C4N2"]["lost_frames_pct"] == 25.0
+    assert doc["sequence"] == "seq (roi_source=oracle)"
+    assert sequence_label(_result(stride=2)) == "seq (roi_source=oracle, stride=2)"
+
+
+# --- the command -------------------------------------------------------------------------------
+
+
+@pytest.fixture
+def recorded_run(monkeypatch):
+    """evaluate_bag replaced by a recorder returning the known result; no renderer self-test."""
+    calls = []
+
+    def fake_evaluate_bag(bag, variants, **kwargs):
+        calls.append({"bag": bag, "variants": variants, **kwargs})
+        return _result(stride=kwargs.get("stride", 1))
+
+    monkeypatch.setattr(evaluate, "evaluate_bag", fake_evaluate_bag)
+    monkeypatch.setattr(importlib.import_module("uav_landing_vision.render.selftest"), "check_renderer",
+                        lambda: SimpleNamespace(summary="passed (stand-in)"))
+    return calls
+
+
+def test_the_command_passes_every_option_on_and_labels_its_report(recorded_run, tmp_path):
+    argv = ["evaluate", "--bag", str(tmp_path / "bag"), "--variants", "C4N2", "--roi-source", "oracle",
+            "--frames", "3", "--start", "1", "--stride", "2", "--seed", "7", "--particles", "30", "--metric", "contour",
+            "--json", str(tmp_path / "s.json"), "--plots", str(tmp_path / "plots")]
+    assert main(argv) == 0
+    call = recorded_run[0]
+    assert call["variants"] == ["C4N2"]
+    assert {k: call[k] for k in ("roi_source", "frames", "start", "stride", "seed", "particles", "metric")} == {
+        "roi_source": "oracle", "frames": 3, "start": 1, "stride": 2, "seed": 7, "particles": 30, "metric": "contour"}
+    label = "seq (roi_source=oracle, stride=2)"
+    assert load_summary(tmp_path / "s.json")["sequence"] == label
+    assert (tmp_path / "plots" / "tables.txt").read_text().startswith(f"{label}: translation error (m)")
+
+
+@pytest.mark.parametrize("option, value, message", [
+    ("--frames", "0", "--frames must be at least 1"),
+    ("--start", "-1", "--start must be non-negative"),
+    ("--stride", "0", "--stride must be at least 1, got 0"),
+    ("--seed", "-1", "--seed must be non-negative, got -1"),
+])
+def test_the_command_refuses_a_bad_number_before_running(recorded_run, tmp_path, option, value, message):
+    with pytest.raises(SystemExit, match=f"^uav-landing evaluate: {message}"):
+        main(["evaluate", "--bag", str(tmp_path / "bag"), "--roi-source", "oracle", option, value])
+    assert recorded_run == []
