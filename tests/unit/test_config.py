@@ -1,5 +1,6 @@
-"""Configuration loading: ROS 2 parameter files into validated dataclasses."""
+"""Configuration loading: ROS 2 parameter files (scalars as rcl reads them) into validated dataclasses."""
 
+import math
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -22,10 +23,16 @@ class Outer:
     inner: Inner = field(default_factory=Inner)
     size: tuple[int, int] = (64, 64)
     label: str | None = None
+    gains: list[float] = field(default_factory=list)
 
     def __post_init__(self):
         if self.count < 1:
             raise ValueError(f"count must be >= 1, got {self.count}")
+
+
+@dataclass(frozen=True)
+class Required:
+    rate_hz: float
 
 
 def test_nested_values_and_coercion():
@@ -51,6 +58,15 @@ def test_nested_values_and_coercion():
         ({"enabled": "yes"}, "enabled: expected bool"),
         ({"count": 0}, "count must be >= 1"),
         ({1: 2, "foo": 3}, r"unknown key\(s\) \['1', 'foo'\]"),  # keys of mixed types are listed, not sorted as is
+        ({"inner": 5}, "inner: expected a mapping for Inner, got int"),
+        ({"inner": [1, 2]}, "inner: expected a mapping for Inner, got list"),
+        ({"inner": {"sigma": True}}, "inner.sigma: expected a number, got True"),
+        ({"label": 5}, "label: expected str, got 5"),
+        ({"label": ["a"]}, "label: expected str"),
+        ({"inner": {"names": [1, "b"]}}, "inner.names: expected str, got 1"),
+        ({"inner": {"names": "xy"}}, "inner.names: expected a list, got 'xy'"),
+        ({"gains": [1.0, "2"]}, "gains: expected a number, got '2'"),
+        ({"gains": 3.0}, "gains: expected a list"),
     ],
 )
 def test_bad_values_are_named(values, message):
@@ -92,3 +108,78 @@ def test_parameter_without_a_value_is_refused_as_rcl_refuses_it(tmp_path):
     path.write_text("tracker:\n  ros__parameters:\n    count: 7\n    mode:\n")
     with pytest.raises(ConfigError, match="no value on line 4"):
         load_node_parameters(path, "tracker")
+
+
+def _scalar(tmp_path, text: str):
+    path = tmp_path / "p.yaml"
+    path.write_text(f"node:\n  ros__parameters:\n    value: {text}\n")
+    return load_node_parameters(path, "node")["value"]
+
+
+@pytest.mark.parametrize(
+    "text, expected",
+    [
+        ("010", 8),  # strtol base 0: a leading 0 is octal
+        ("-010", -8),
+        ("0", 0),
+        ("0x10", 16),
+        ("0X1F", 31),
+        ("-0x10", -16),
+        ("+17", 17),
+        ("1e-3", 0.001),  # strtod: an exponent without a dot
+        ("1E3", 1000.0),
+        ("2e+2", 200.0),
+        (".5", 0.5),
+        ("5.", 5.0),
+        ("-.5e1", -5.0),
+    ],
+)
+def test_parameter_file_numbers_read_as_strtol_and_strtod_read_them(tmp_path, text, expected):
+    value = _scalar(tmp_path, text)
+    assert value == expected and type(value) is type(expected)
+
+
+@pytest.mark.parametrize("text", ["1_000", "0b11", "1:30", "0o10"])
+def test_parameter_file_numbers_that_rcl_does_not_read_are_strings(tmp_path, text):
+    assert _scalar(tmp_path, text) == text
+
+
+@pytest.mark.parametrize("text, sign", [(".inf", 1), ("-.inf", -1), ("+.Inf", 1)])
+def test_parameter_file_infinities_are_floats(tmp_path, text, sign):
+    value = _scalar(tmp_path, text)
+    assert isinstance(value, float) and math.isinf(value) and math.copysign(1.0, value) == sign
+
+
+def test_parameter_file_with_an_unhashable_key_is_a_config_error(tmp_path):
+    path = tmp_path / "p.yaml"
+    path.write_text("node:\n  ros__parameters:\n    ? [a, b]\n    : 1\n")
+    with pytest.raises(ConfigError, match="cannot read parameter file"):
+        load_node_parameters(path, "node")
+
+
+@pytest.mark.parametrize("text", ["", "# nothing\n", "- node\n- other\n", "just text\n"])
+def test_parameter_file_without_a_mapping_has_no_section(tmp_path, text):
+    path = tmp_path / "p.yaml"
+    path.write_text(text)
+    with pytest.raises(ConfigError, match="no section 'node'"):
+        load_node_parameters(path, "node")
+
+
+@pytest.mark.parametrize("params", ["5", "[1, 2]", "null", "text"])
+def test_ros_parameters_that_are_not_a_mapping_are_refused(tmp_path, params):
+    path = tmp_path / "p.yaml"
+    path.write_text(f"node:\n  ros__parameters: {params}\n")
+    with pytest.raises(ConfigError, match="must hold a 'ros__parameters' mapping"):
+        load_node_parameters(path, "node")
+
+
+def test_typed_sequences_and_optionals_are_converted():
+    cfg = from_mapping(Outer, {"label": "deck", "gains": [1, 2.5], "inner": {"names": ["a"]}})
+    assert cfg.label == "deck" and cfg.gains == [1.0, 2.5] and isinstance(cfg.gains, list)
+    assert all(isinstance(g, float) for g in cfg.gains) and cfg.inner.names == ("a",)
+
+
+def test_a_missing_required_value_is_a_config_error():
+    with pytest.raises(ConfigError, match="rate_hz"):
+        from_mapping(Required, {})
+    assert from_mapping(Required, {"rate_hz": 30}).rate_hz == 30.0
