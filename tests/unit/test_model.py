@@ -1,4 +1,5 @@
-"""The parametric UAV mesh (Table 1.1) and CAD-file loading."""
+"""The parametric UAV mesh (Table 1.1): its counts, closure and geometry (dihedral, camber, thickness,
+centre of gravity); CAD-file loading and what it refuses."""
 
 import numpy as np
 import pytest
@@ -198,3 +199,219 @@ def test_corrupt_mesh_files_are_mesh_errors(tmp_path, name, text, message):
     path.write_text(text)
     with pytest.raises(MeshError, match=message):
         load_mesh(path)
+
+
+# --- CAD files at the edges of what is accepted ---------------------------------------------------
+
+_TETRA_FACES = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+
+
+def _obj_text(vertices, faces) -> str:
+    lines = [f"v {x!r} {y!r} {z!r}" for x, y, z in np.asarray(vertices, float).tolist()]
+    lines += [f"f {a} {b} {c}" for a, b, c in (np.asarray(faces) + 1).tolist()]
+    return "\n".join(lines) + "\n"
+
+
+def test_upper_case_cad_suffixes_are_accepted(tmp_path):
+    """CAD exporters on Windows write ``UAV.STL``: the suffix is matched without case."""
+    ref = fixed_wing_mesh("low")
+    lower = tmp_path / "uav.stl"
+    trimesh.Trimesh(ref.vertices, ref.faces, process=False).export(lower)
+    upper = lower.rename(tmp_path / "UAV.STL")
+    loaded = load_mesh(upper)
+    assert loaded.triangle_count == ref.triangle_count and loaded.is_closed
+
+
+def test_a_face_index_equal_to_the_vertex_count_is_out_of_range(tmp_path):
+    """Three vertices are indexed 0..2: index 3 is one past the end."""
+    path = tmp_path / "beyond.ply"
+    path.write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+                    "element face 1\nproperty list uchar int vertex_indices\nend_header\n"
+                    "-0.5 -0.5 0\n0.5 -0.5 0\n0 0.5 0\n3 0 1 3\n")
+    with pytest.raises(MeshError, match="face index out of range"):
+        load_mesh(path)
+
+
+@pytest.mark.parametrize("collapsed", [[0, 1, 0], [1, 0, 0], [0, 0, 1]])
+def test_triangles_collapsed_on_any_pair_of_corners_are_dropped(tmp_path, collapsed):
+    """Whichever two corners coincide (first-second, second-third or third-first), the triangle
+    has no area and is dropped, so the closed model stays closed."""
+    ref = fixed_wing_mesh("low")
+    a, b = ref.faces[0, :2]
+    extra = np.where(np.array(collapsed) == 0, a, b)
+    path = tmp_path / "uav.obj"
+    path.write_text(_obj_text(ref.vertices, np.vstack([ref.faces, extra[None]])))
+    loaded = load_mesh(path)
+    assert loaded.triangle_count == ref.triangle_count and loaded.is_closed
+
+
+@pytest.mark.parametrize("size, unit", [(1.8, "cm"), (0.05, "m"), (0.099, "m")])
+def test_models_below_a_tenth_of_a_metre_are_refused(tmp_path, size, unit):
+    """A 1.8 m UAV read as centimetres is 1.8 cm across: a unit mistake, not a UAV."""
+    ref = fixed_wing_mesh("low")
+    path = tmp_path / "uav.stl"
+    trimesh.Trimesh(ref.vertices * (size / ref.extents.max()), ref.faces, process=False).export(path)
+    with pytest.raises(MeshError, match="implausible for a UAV"):
+        load_mesh(path, unit=unit)
+
+
+@pytest.mark.parametrize("length_m", [21.0, 60.0])
+def test_models_beyond_twenty_metres_are_refused(tmp_path, length_m):
+    ref = fixed_wing_mesh("low")
+    path = tmp_path / "uav.stl"
+    trimesh.Trimesh(ref.vertices * (length_m / ref.extents.max()), ref.faces, process=False).export(path)
+    with pytest.raises(MeshError, match="implausible for a UAV"):
+        load_mesh(path)
+
+
+@pytest.mark.parametrize("length_m", [0.101, 19.9])
+def test_models_just_inside_the_size_limits_are_accepted(tmp_path, length_m):
+    ref = fixed_wing_mesh("low")
+    path = tmp_path / "uav.stl"
+    trimesh.Trimesh(ref.vertices * (length_m / ref.extents.max()), ref.faces, process=False).export(path)
+    assert load_mesh(path).extents.max() == pytest.approx(length_m, rel=1e-5)
+
+
+def test_a_nearly_collinear_triangle_has_no_surface(tmp_path):
+    """Three points on one line, whose area rounding leaves at ~1e-17 m² rather than 0."""
+    d = np.array([0.1, 0.7, 0.3])
+    vertices = np.array([-1.0 * d, 0.4 * d, 1.3 * d])
+    assert 0 < trimesh.Trimesh(vertices, [[0, 1, 2]], process=False).area < 1e-15
+    path = tmp_path / "line.obj"
+    path.write_text(_obj_text(vertices, [[0, 1, 2]]))
+    with pytest.raises(MeshError, match="no surface"):
+        load_mesh(path)
+
+
+def test_a_model_whose_origin_is_a_corner_of_its_box_is_accepted(tmp_path):
+    """The origin on the boundary of the model's box (a corner here) still lies within it."""
+    corners = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]])
+    path = tmp_path / "tetra.obj"
+    path.write_text(_obj_text(corners, _TETRA_FACES))
+    mesh = load_mesh(path)
+    assert mesh.is_closed and mesh.signed_volume == pytest.approx(1 / 6)
+
+
+def test_mesh_refuses_faces_that_are_not_triangles():
+    square = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0.0]])
+    with pytest.raises(MeshError, match="faces"):
+        Mesh(square, np.array([[0, 1, 2, 3]]))
+
+
+def test_mesh_refuses_negative_face_indices():
+    """A negative index would silently wrap around to the last vertices."""
+    with pytest.raises(MeshError, match="out of range"):
+        Mesh(np.eye(3), np.array([[0, 1, -1]]))
+
+
+def test_mesh_with_an_edge_used_by_three_faces_is_not_closed():
+    """A tetrahedron plus a fin sharing one of its edges: that edge has three faces."""
+    corners = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0], [1, 1, -1.0]])
+    faces = np.vstack([_TETRA_FACES, [[0, 1, 4]]])
+    assert not Mesh(corners, faces).is_closed
+
+
+def test_mesh_whose_directed_edges_repeat_is_not_closed():
+    """Two tetrahedra sharing an edge (a non-manifold bow-tie): every edge has its reverse, but
+    the shared one appears twice in each direction, so the mesh is not closed."""
+    corners = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0], [1, -1, 0], [1, 0, -1.0]])
+    second = np.array([[0, 4, 1], [0, 1, 5], [0, 5, 4], [1, 4, 5]])
+    one = Mesh(corners, _TETRA_FACES)
+    assert one.is_closed
+    two = Mesh(corners, np.vstack([_TETRA_FACES, second]))
+    assert Mesh(corners, second).signed_volume != 0
+    assert not two.is_closed
+    assert not Mesh(corners, np.vstack([_TETRA_FACES, _TETRA_FACES])).is_closed  # every face twice
+
+
+# --- the generated fixed-wing UAV -------------------------------------------------------------
+
+
+def _wing_tip(mesh: Mesh, side: int) -> np.ndarray:
+    v = mesh.vertices.astype(float)
+    y = side * SPAN / 2
+    return v[np.abs(v[:, 1] - y) < 1e-6]
+
+
+def _wing_root(mesh: Mesh) -> np.ndarray:
+    """The wing's section at y = 0: inside the fuselage, between the wing's leading and trailing
+    edges and below the fuselage's top (z = 0.065 m)."""
+    v = mesh.vertices.astype(float)
+    sel = (np.abs(v[:, 1]) < 1e-9) & (v[:, 0] <= 0.07 + 1e-6) & (v[:, 0] >= 0.07 - CHORD - 1e-6)
+    return v[sel & (v[:, 2] > 0.0) & (v[:, 2] < 0.06)]
+
+
+@pytest.mark.parametrize("side", [1, -1])
+def test_wing_tips_are_raised_by_a_three_degree_dihedral(mesh, side):
+    """The wing has a root section at y = 0 with its chord 3 cm above the body axis, and each
+    tip section is the same section raised by (SPAN/2)·tan 3° ≈ 4.7 cm."""
+    tip, root = _wing_tip(mesh, side), _wing_root(mesh)
+    assert len(root) == len(tip) > 10
+    np.testing.assert_allclose(np.sort(tip[:, 0]), np.sort(root[:, 0]), atol=1e-6)
+    rise = np.mean(tip[:, 2]) - np.mean(root[:, 2])
+    assert rise == pytest.approx(SPAN / 2 * np.tan(np.radians(3.0)), abs=1e-5)
+    chord_z = root[np.argmax(root[:, 0]), 2]  # the leading edge lies on the chord line
+    assert chord_z == pytest.approx(0.03, abs=1e-6)
+
+
+def test_centre_of_gravity_is_at_29_percent_of_the_wing_chord(mesh):
+    """The body origin lies behind the wing's leading edge by 29 % of the 0.24 m chord."""
+    tip = _wing_tip(mesh, 1)
+    le, te = tip[:, 0].max(), tip[:, 0].min()
+    assert te < 0.0 < le
+    assert le - te == pytest.approx(CHORD, rel=1e-6)
+    assert le / (le - te) == pytest.approx(0.29, abs=0.005)
+
+
+def test_wing_section_is_ten_percent_thick_and_cambered_upwards(mesh):
+    """NACA 4-digit thickness law (10 %) on the a=1.0 mean line with design lift 0.4: maximum
+    thickness 0.10·c; camber (1/4π)·0.4·ln 2 ≈ 2.2 % of the chord at mid-chord, upwards."""
+    tip = _wing_tip(mesh, 1)
+    x = (tip[:, 0].max() - tip[:, 0]) / CHORD  # 0 at the leading edge, 1 at the trailing edge
+    z = (tip[:, 2] - np.mean(tip[:, 2][[np.argmin(x), np.argmax(x)]])) / CHORD  # about the chord line
+    stations = np.unique(np.round(x, 5))
+    thickness, camber = [], []
+    for s in stations[1:-1]:
+        at = z[np.abs(x - s) < 2e-5]
+        assert len(at) == 2
+        thickness.append(at.max() - at.min())
+        camber.append(0.5 * (at.max() + at.min()))
+    thickness, camber, inner = np.array(thickness), np.array(camber), stations[1:-1]
+    # The true maximum (0.30 c) falls between cosine-spaced stations: a little under 10 %.
+    assert 0.095 <= thickness.max() <= 0.1001
+    mid = np.argmin(np.abs(inner - 0.5))
+    assert camber[mid] == pytest.approx(0.4 / (4 * np.pi) * np.log(2.0), abs=0.003)
+    assert np.all(camber > -1e-9)
+
+
+def test_fin_stands_up_from_the_tail(mesh):
+    """The fin rises 0.19 m above the tail boom's axis, in the plane y = 0 (up is +z in FLU)."""
+    v = mesh.vertices.astype(float)
+    tail = v[v[:, 0] < -0.6]
+    top = tail[np.argmax(tail[:, 2])]
+    assert top[2] == pytest.approx(0.19, abs=1e-6)
+    assert abs(top[1]) < 0.01
+    assert tail[:, 2].min() > -0.03  # nothing of the tail hangs below the boom
+
+
+def _naca_section_area(thickness: float) -> float:
+    """Area of the NACA 4-digit section of unit chord, by a fine trapezoid integral of 2·y_t."""
+    x = np.linspace(0.0, 1.0, 200_001)
+    yt = 5 * thickness * (0.2969 * np.sqrt(x) - 0.1260 * x - 0.3516 * x**2 + 0.2843 * x**3 - 0.1036 * x**4)
+    return float(np.trapezoid(2 * yt, x))
+
+
+def test_lifting_surfaces_enclose_the_volume_of_their_sections(mesh):
+    """Each part is a simple solid: wing (10 %, chord 0.24, span 1.8), tailplane (9 %, chord
+    0.12, span 0.5) and fin (9 %, chord 0.14 → 0.08 over 0.19 m) enclose their section area
+    times span (times the mean squared chord for the tapered fin), as sampled."""
+    parts = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False).split(only_watertight=False)
+    by_size = {tuple(np.round(np.ptp(p.vertices, axis=0), 2)): p for p in parts}
+    wing = next(p for k, p in by_size.items() if k[1] == 1.8)
+    tail = next(p for k, p in by_size.items() if k[1] == 0.5)
+    fin = next(p for k, p in by_size.items() if k[2] == 0.19)
+    assert all(p.is_volume for p in (wing, tail, fin))
+    assert wing.volume == pytest.approx(_naca_section_area(0.10) * CHORD**2 * SPAN, rel=0.015)
+    assert tail.volume == pytest.approx(_naca_section_area(0.09) * 0.12**2 * 0.5, rel=0.04)
+    mean_sq_chord = (0.14**2 + 0.14 * 0.08 + 0.08**2) / 3
+    assert fin.volume == pytest.approx(_naca_section_area(0.09) * mean_sq_chord * 0.19, rel=0.04)
