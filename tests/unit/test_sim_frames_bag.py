@@ -1,4 +1,5 @@
-"""Frame synthesis and bag output: ground truth vs. drawn UAV, rosbags round trip, determinism, video."""
+"""Frame synthesis and bag output: ground truth vs. drawn UAV, rosbags round trip (field by field),
+determinism, video; bags of other recorders (padded rows, bgr8, covariance poses, two image topics)."""
 
 import dataclasses
 import hashlib
@@ -6,6 +7,8 @@ import hashlib
 import cv2
 import numpy as np
 import pytest
+from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+from rosbags.typesys import Stores, get_typestore
 
 from uav_landing_vision.camera import CameraModel
 from uav_landing_vision.model import fixed_wing_mesh
@@ -18,16 +21,20 @@ from uav_landing_vision.sim import (
     iter_frames,
     load_scenario,
     make_trajectory,
+    Poses,
     read_camera,
+    read_pose_csv,
     read_poses,
     SequenceWriter,
     scenario_camera,
     simulate,
+    write_pose_csv,
 )
 from uav_landing_vision.sim import bag as sim_bag
 from uav_landing_vision.sim.synthesis import FrameSynthesizer, motion_blur_kernel
 
 MESH = fixed_wing_mesh("low")
+TS = get_typestore(Stores.ROS2_JAZZY)
 
 
 @pytest.fixture(scope="module")
@@ -172,15 +179,14 @@ def small_bag(tmp_path_factory):
 
 
 def _write_bag(path, topics):
-    """A bag with a connection per ``(topic, type)`` and no messages."""
-    from rosbags.rosbag2 import StoragePlugin, Writer
-    from rosbags.typesys import Stores, get_typestore
-
-    writer = Writer(path, version=Writer.VERSION_LATEST, storage_plugin=StoragePlugin.MCAP)
-    writer.open()
-    for topic, msgtype in topics:
-        writer.add_connection(topic, msgtype, typestore=get_typestore(Stores.ROS2_JAZZY))
-    writer.close()
+    """A bag of ``topics``: ``{topic: [(record_ns, message), ...]}``, or ``{topic: "pkg/msg/Type"}``
+    for a connection without messages."""
+    with Writer(path, version=Writer.VERSION_LATEST, storage_plugin=StoragePlugin.MCAP) as writer:
+        for topic, items in topics.items():
+            msgtype = items if isinstance(items, str) else items[0][1].__msgtype__
+            conn = writer.add_connection(topic, msgtype, typestore=TS)
+            for record_ns, msg in [] if isinstance(items, str) else items:
+                writer.write(conn, record_ns, TS.serialize_cdr(msg, conn.msgtype))
 
 
 def test_unreadable_bags_and_topics_are_clear_errors(tmp_path, small_bag):
@@ -197,7 +203,7 @@ def test_unreadable_bags_and_topics_are_clear_errors(tmp_path, small_bag):
         (truncated / part.name).write_bytes(data[: len(data) // 2] if part.suffix == ".mcap" else data)
     with pytest.raises(ValueError, match=r"cannot read .* of bag .*truncated"):
         list(iter_frames(truncated))
-    _write_bag(tmp_path / "empty", [("/camera/camera_info", "sensor_msgs/msg/CameraInfo")])
+    _write_bag(tmp_path / "empty", {"/camera/camera_info": "sensor_msgs/msg/CameraInfo"})
     with pytest.raises(ValueError, match="no message on /camera/camera_info"):
         read_camera(tmp_path / "empty")
 
@@ -346,3 +352,186 @@ def test_simulate_refuses_options_it_cannot_honour(tmp_path, monkeypatch, option
     with pytest.raises(SystemExit, match=f"^uav-landing simulate: {message}"):
         main(["simulate", "--frames", "1", *options])
     assert sorted(p.name for p in tmp_path.iterdir()) == ["clip.mp4"]
+
+
+# --- bags read back field by field, and bags of other recorders -----------------------------------
+
+K = np.array([[36.0, 0.0, 19.6], [0.0, 33.0, 14.8], [0.0, 0.0, 1.0]])
+FRAME = "deck_camera_optical"
+
+
+def _frames(n, rng):
+    stamps = [1_700_000_000_123_456_789 + i * 34_000_017 for i in range(n)]
+    images = [rng.integers(0, 256, (30, 40, 3), dtype=np.uint8) for _ in range(n)]
+    trans = rng.uniform(-20, 20, (n, 3))
+    quat = rng.normal(size=(n, 4))
+    quat /= np.linalg.norm(quat, axis=1, keepdims=True)
+    return stamps, images, trans, quat
+
+
+@pytest.fixture(scope="module")
+def written(tmp_path_factory):
+    """A 4-frame sequence with distinct quaternion components and a distorted camera."""
+    folder = tmp_path_factory.mktemp("seq")
+    rng = np.random.default_rng(93)
+    camera = CameraModel(40, 30, K, np.array([-0.1, 0.02, 0.001, -0.002, 0.003]), FRAME)
+    stamps, images, trans, quat = _frames(4, rng)
+    with SequenceWriter(folder / "bag", camera, png_dir=folder / "png") as writer:
+        for s, img, t, q in zip(stamps, images, trans, quat):
+            writer.write(s, img, t, q)
+    return folder, camera, stamps, images, trans, quat
+
+
+def _raw_messages(bag):
+    with Reader(bag) as reader:
+        return [(conn.topic, t, TS.deserialize_cdr(raw, conn.msgtype)) for conn, t, raw in reader.messages()]
+
+
+def test_written_messages_carry_the_frame_stamp_frame_id_and_pose_fields(written):
+    folder, camera, stamps, images, trans, quat = written
+    msgs = _raw_messages(folder / "bag")
+    assert len(msgs) == 3 * len(stamps)
+    by_topic = {}
+    for topic, record_ns, msg in msgs:
+        by_topic.setdefault(topic, []).append((record_ns, msg))
+    assert set(by_topic) == {sim_bag.IMAGE_TOPIC, sim_bag.INFO_TOPIC, sim_bag.TRUTH_TOPIC}
+    for topic, items in by_topic.items():
+        for (record_ns, msg), s in zip(items, stamps, strict=True):
+            assert record_ns == s  # the bag's record time is the header stamp
+            assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == divmod(s, 10**9)
+            assert msg.header.frame_id == FRAME
+    for (_, img_msg), img in zip(by_topic[sim_bag.IMAGE_TOPIC], images):
+        assert (img_msg.encoding, img_msg.height, img_msg.width, img_msg.step) == ("rgb8", 30, 40, 120)
+        np.testing.assert_array_equal(np.asarray(img_msg.data).reshape(30, 40, 3), img)
+    for (_, truth), t, q in zip(by_topic[sim_bag.TRUTH_TOPIC], trans, quat):
+        p, o = truth.pose.position, truth.pose.orientation
+        assert [p.x, p.y, p.z] == t.tolist()
+        assert [o.x, o.y, o.z, o.w] == q.tolist()  # geometry_msgs order x, y, z, w
+    info = by_topic[sim_bag.INFO_TOPIC][0][1]
+    assert info.distortion_model == "plumb_bob"
+    np.testing.assert_array_equal(info.d, camera.dist)
+    np.testing.assert_array_equal(info.k, K.ravel())
+    np.testing.assert_array_equal(info.p, np.hstack([K, np.zeros((3, 1))]).ravel())
+
+
+def test_ground_truth_quaternions_and_positions_read_back_in_x_y_z_w_order(written):
+    folder, _, stamps, _, trans, quat = written
+    for source in (folder / "bag", folder / "png"):
+        poses = read_poses(source)
+        assert poses.stamps_ns.tolist() == stamps
+        np.testing.assert_array_equal(poses.trans, trans)
+        np.testing.assert_array_equal(poses.quat, quat)
+
+
+def test_read_camera_keeps_the_recorded_frame_id(written):
+    folder, camera, *_ = written
+    read = read_camera(folder / "bag")
+    assert read.frame_id == FRAME
+    np.testing.assert_array_equal(read.K, camera.K)
+    np.testing.assert_array_equal(read.dist, camera.dist)
+
+
+def test_a_fisheye_camera_is_recorded_with_its_distortion_model(tmp_path):
+    camera = CameraModel(40, 30, K, np.array([0.01, -0.002, 0.0003, 0.0001]), FRAME, "equidistant")
+    with sim_bag.SequenceWriter(tmp_path / "bag", camera) as writer:
+        writer.write(10**9, np.zeros((30, 40, 3), np.uint8), np.zeros(3), np.array([0, 0, 0, 1.0]))
+    read = read_camera(tmp_path / "bag")
+    assert read.distortion_model == "equidistant"
+    np.testing.assert_array_equal(read.dist, camera.dist)
+
+
+def test_pose_csv_round_trip_keeps_quaternion_order(tmp_path):
+    rng = np.random.default_rng(5)
+    quat = rng.normal(size=(3, 4))
+    poses = Poses(np.array([-5, 0, 2**62], np.int64), rng.normal(size=(3, 3)), quat)
+    write_pose_csv(tmp_path / "p.csv", poses)
+    header = (tmp_path / "p.csv").read_text().splitlines()[0]
+    assert header == "stamp_ns,x,y,z,qx,qy,qz,qw"
+    back = read_pose_csv(tmp_path / "p.csv")
+    np.testing.assert_array_equal(back.stamps_ns, poses.stamps_ns)
+    np.testing.assert_array_equal(back.trans, poses.trans)
+    np.testing.assert_array_equal(back.quat, poses.quat)
+
+
+def test_pose_csv_columns_are_read_by_name(tmp_path):
+    (tmp_path / "p.csv").write_text("qw,stamp_ns,x,y,z,qx,qy,qz,extra\n0.9,7,1,2,3,0.1,0.2,0.3,x\n")
+    poses = read_pose_csv(tmp_path / "p.csv")
+    assert poses.stamps_ns.tolist() == [7]
+    assert poses.trans.tolist() == [[1.0, 2.0, 3.0]] and poses.quat.tolist() == [[0.1, 0.2, 0.3, 0.9]]
+
+
+@pytest.mark.parametrize("stamp", [2**63, -(2**63) - 1])
+def test_pose_csv_stamps_beyond_64_bits_are_value_errors(tmp_path, stamp):
+    (tmp_path / "p.csv").write_text(f"stamp_ns,x,y,z,qx,qy,qz,qw\n{stamp},0,0,0,0,0,0,1\n")
+    with pytest.raises(ValueError, match="line 2: stamp_ns .* does not fit 64 bits"):
+        read_pose_csv(tmp_path / "p.csv")
+
+
+def test_recorded_topics_map_played_names_back_to_recorded_ones():
+    remaps = {"/front/image": sim_bag.IMAGE_TOPIC, "/gt": sim_bag.TRUTH_TOPIC}
+    assert sim_bag.recorded_topics(remaps) == ("/front/image", sim_bag.INFO_TOPIC, "/gt")
+    assert sim_bag.recorded_topics() == (sim_bag.IMAGE_TOPIC, sim_bag.INFO_TOPIC, sim_bag.TRUTH_TOPIC)
+
+
+def _image_msg(stamp_ns, rgb, encoding="rgb8", pad=0):
+    m = TS.types
+    sec, nanosec = divmod(stamp_ns, 10**9)
+    header = m["std_msgs/msg/Header"](stamp=m["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec), frame_id="c")
+    h, w = rgb.shape[:2]
+    pixels = rgb[..., ::-1] if encoding == "bgr8" else rgb
+    rows = np.concatenate([pixels.reshape(h, 3 * w), np.full((h, pad), 77, np.uint8)], axis=1)
+    return m["sensor_msgs/msg/Image"](header=header, height=h, width=w, encoding=encoding, is_bigendian=0,
+                                      step=3 * w + pad, data=np.ascontiguousarray(rows).reshape(-1))
+
+
+@pytest.mark.parametrize("encoding, pad", [("rgb8", 8), ("bgr8", 0), ("bgr8", 4)])
+def test_frames_with_padded_rows_or_bgr8_are_read_as_rgb(tmp_path, encoding, pad):
+    rng = np.random.default_rng(1)
+    images = [rng.integers(0, 256, (5, 7, 3), dtype=np.uint8) for _ in range(2)]
+    _write_bag(tmp_path / "bag", {sim_bag.IMAGE_TOPIC: [(10**9 * (i + 1), _image_msg(10**9 * (i + 1), img, encoding, pad))
+                                                     for i, img in enumerate(images)]})
+    read = list(sim_bag.iter_frames(tmp_path / "bag"))
+    assert [s for s, _ in read] == [10**9, 2 * 10**9]
+    for (_, got), img in zip(read, images, strict=True):
+        np.testing.assert_array_equal(got, img)
+
+
+def test_frames_of_the_first_image_topic_only_when_no_topic_is_named(tmp_path):
+    rng = np.random.default_rng(2)
+    left = [(10**9 * (i + 1), _image_msg(10**9 * (i + 1), rng.integers(0, 256, (4, 6, 3), dtype=np.uint8)))
+            for i in range(3)]
+    right = [(s + 1000, _image_msg(s + 1000, rng.integers(0, 256, (4, 6, 3), dtype=np.uint8))) for s, _ in left]
+    _write_bag(tmp_path / "bag", {"/left/image_raw": left, "/right/image_raw": right})
+    frames = list(sim_bag.iter_frames(tmp_path / "bag", ""))
+    assert len(frames) == 3
+    stamps = [s for s, _ in frames]
+    assert stamps in ([s for s, _ in left], [s for s, _ in right])
+
+
+def test_a_frame_recorded_twice_with_one_stamp_is_refused(tmp_path):
+    rgb = np.zeros((4, 6, 3), np.uint8)
+    twice = [(10**9, _image_msg(10**9, rgb)), (10**9 + 1, _image_msg(10**9, rgb))]  # record times differ, stamps not
+    _write_bag(tmp_path / "bag", {sim_bag.IMAGE_TOPIC: twice})
+    with pytest.raises(ValueError, match="frame 1 is stamped 1000000000 ns, not after frame 0"):
+        list(sim_bag.increasing_frames(tmp_path / "bag"))
+
+
+def test_poses_with_covariance_are_read(tmp_path):
+    m = TS.types
+    rng = np.random.default_rng(4)
+    items, expected = [], []
+    for i in range(3):
+        t, q = rng.normal(size=3), rng.normal(size=4)
+        header = m["std_msgs/msg/Header"](stamp=m["builtin_interfaces/msg/Time"](sec=5 + i, nanosec=i), frame_id="c")
+        position = m["geometry_msgs/msg/Point"](x=t[0], y=t[1], z=t[2])
+        orientation = m["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3])
+        pose = m["geometry_msgs/msg/Pose"](position=position, orientation=orientation)
+        msg = m["geometry_msgs/msg/PoseWithCovarianceStamped"](
+            header=header, pose=m["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=np.eye(6).ravel()))
+        items.append(((5 + i) * 10**9 + i, msg))
+        expected.append((t, q))
+    _write_bag(tmp_path / "bag", {"/uav/pose": items})
+    poses = read_poses(tmp_path / "bag", "/uav/pose")
+    assert poses.stamps_ns.tolist() == [s for s, _ in items]
+    np.testing.assert_array_equal(poses.trans, [t for t, _ in expected])
+    np.testing.assert_array_equal(poses.quat, [q for _, q in expected])
