@@ -1,5 +1,5 @@
-"""Shared node pieces (image conversion, QoS, stamp matching, parameters → config, /diagnostics), and the
-in-process rclpy harness and bag/image helpers the other ``test_node_*`` modules import."""
+"""Shared node pieces (image and pose conversion, QoS, stamp matching, calibration updates, parameters → config,
+/diagnostics), and the in-process rclpy harness and bag/image helpers the other ``test_node_*`` modules import."""
 
 import math
 import os
@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from geometry_msgs.msg import Pose
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -31,7 +32,8 @@ from uav_landing_vision.config import ConfigError, load_node_parameters
 from uav_landing_vision.nodes import base
 from uav_landing_vision.nodes.base import LandingNode, run_node
 from uav_landing_vision.nodes.calibration import Calibration
-from uav_landing_vision.nodes.image import ImageError, image_to_numpy, numpy_to_image
+from uav_landing_vision.nodes.image import ImageError, image_to_numpy, image_to_rgb, numpy_to_image
+from uav_landing_vision.nodes.poses import numpy_to_pose, pose_to_numpy
 from uav_landing_vision.nodes.qos import IMAGE_QOS, KEEP_ALL_QOS, RELIABLE_QOS, SENSOR_QOS, qos_for_type
 from uav_landing_vision.nodes.sync import RepeatedStampError, StampCache
 
@@ -571,3 +573,259 @@ def test_has_newer_looks_for_that_input_only_and_strictly_after():
     assert not cache.has_newer("image", 20)
     cache.add("image", 40, "i40")
     assert cache.has_newer("image", 20) and cache.has_newer("image", 39) and not cache.has_newer("image", 40)
+
+
+def test_a_message_exactly_restart_behind_ns_before_a_waiting_entry_is_late_not_a_new_time_line():
+    cache = StampCache(("image", "boxes"), size=4, restart_behind_ns=100)
+    cache.add("image", 1000, "i1000")
+    assert cache.add("boxes", 900, "b900") == (None, [])  # exactly 100 ns behind: still the same time-line
+    assert len(cache) == 2
+    entry, evicted = cache.add("boxes", 899, "b899")  # 101 ns behind: the old time-line goes
+    assert entry is None and [e.stamp_ns for e in evicted] == [1000]
+    assert sorted(cache._entries) == [899, 900]
+
+
+# Poses: what pose_to_numpy accepts, what it refuses, and the axis and quaternion order it keeps.
+
+
+def _pose(position, quat) -> Pose:
+    pose = Pose()
+    pose.position.x, pose.position.y, pose.position.z = (float(v) for v in position)
+    pose.orientation.x, pose.orientation.y, pose.orientation.z, pose.orientation.w = (float(v) for v in quat)
+    return pose
+
+
+def test_pose_to_numpy_reads_x_y_z_and_a_quaternion_in_x_y_z_w_order():
+    rng = np.random.default_rng(7)
+    q = rng.normal(size=4)
+    q /= np.linalg.norm(q)
+    position, quat = pose_to_numpy(_pose([1.0, -2.0, 30.0], q))
+    np.testing.assert_array_equal(position, [1.0, -2.0, 30.0])
+    np.testing.assert_array_equal(quat, q)
+    back = numpy_to_pose(Pose(), position, quat)
+    assert (back.orientation.x, back.orientation.y, back.orientation.z, back.orientation.w) == tuple(q)
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf")])
+@pytest.mark.parametrize("index", range(4))
+def test_pose_to_numpy_refuses_a_quaternion_with_a_non_finite_component(bad, index):
+    """NaN makes ‖q‖ NaN, and a NaN never compares above the tolerance: only the finiteness check refuses it."""
+    q = [0.0, 0.0, 0.0, 1.0]
+    q[index] = bad
+    with pytest.raises(ValueError, match="quaternion is not a finite unit"):
+        pose_to_numpy(_pose([0.0, 0.0, 10.0], q))
+
+
+@pytest.mark.parametrize("scale", [0.5, 0.99, 0.999, 1.001, 1.01, 2.0])
+def test_pose_to_numpy_refuses_a_quaternion_too_short_or_too_long(scale):
+    q = np.array([0.1, -0.2, 0.3, 0.9])
+    q = scale * q / np.linalg.norm(q)
+    with pytest.raises(ValueError, match="quaternion is not a finite unit"):
+        pose_to_numpy(_pose([0.0, 0.0, 10.0], q))
+
+
+@pytest.mark.parametrize("scale", [1.0 - 5e-5, 1.0, 1.0 + 5e-5])
+def test_pose_to_numpy_accepts_a_quaternion_within_float32_rounding_of_unit(scale):
+    q = np.array([0.1, -0.2, 0.3, 0.9])
+    q = scale * q / np.linalg.norm(q)
+    _, quat = pose_to_numpy(_pose([0.0, 0.0, 10.0], q))
+    np.testing.assert_array_equal(quat, q)  # as sent: the node does not renormalise
+
+
+# Images: what image_to_numpy refuses, and the axis and channel order the conversions keep.
+
+
+@pytest.mark.parametrize("width, height", [(0, 5), (7, 0)])
+def test_an_image_with_one_side_zero_is_refused_as_empty(width, height):
+    msg = Image(height=height, width=width, encoding="rgb8", step=width * 3, data=b"")
+    with pytest.raises(ImageError, match="empty image"):
+        image_to_numpy(msg)
+
+
+@pytest.mark.parametrize("extra", [1, 7, 21])
+def test_image_data_longer_than_step_times_height_is_an_image_error(extra):
+    """Too much data is as unusable as too little, and must be an ImageError (what the nodes catch),
+    not numpy's reshape error."""
+    msg = image_msg(np.zeros((5, 7, 3), np.uint8), "rgb8")
+    msg.data = bytes(5 * 21 + extra)
+    with pytest.raises(ImageError, match="expected step x height"):
+        image_to_numpy(msg)
+
+
+@pytest.mark.parametrize("encoding, shape", [("rgb8", (4, 6, 3)), ("bgr8", (4, 6, 3)), ("mono8", (4, 6))])
+@pytest.mark.parametrize("pad", [0, 2])
+def test_image_to_numpy_gives_a_read_only_view(encoding, shape, pad):
+    pixels = np.random.default_rng(3).integers(0, 256, size=shape, dtype=np.uint8)
+    view = image_to_numpy(image_msg(pixels, encoding, pad=pad))
+    np.testing.assert_array_equal(view, pixels)
+    assert not view.flags.writeable
+    with pytest.raises(ValueError):
+        view[0, 0] = 1
+
+
+def test_image_to_rgb_swaps_bgr_channels_and_keeps_rgb():
+    rgb = np.random.default_rng(5).integers(0, 256, size=(3, 4, 3), dtype=np.uint8)
+    np.testing.assert_array_equal(image_to_rgb(image_msg(rgb, "rgb8")), rgb)
+    np.testing.assert_array_equal(image_to_rgb(image_msg(np.ascontiguousarray(rgb[..., ::-1]), "bgr8", pad=5)), rgb)
+    with pytest.raises(ImageError, match="has no colour"):
+        image_to_rgb(image_msg(rgb[..., 0].copy(), "mono8"))
+
+
+def test_numpy_to_image_of_a_non_square_frame_has_height_rows_of_width_pixels():
+    pixels = np.random.default_rng(9).integers(0, 256, size=(3, 5, 3), dtype=np.uint8)
+    msg = numpy_to_image(pixels, "bgr8", Image().header)
+    assert (msg.height, msg.width, msg.step, msg.is_bigendian, len(msg.data)) == (3, 5, 15, 0, 45)
+    np.testing.assert_array_equal(np.frombuffer(bytes(msg.data), np.uint8).reshape(3, 5, 3), pixels)
+
+
+@pytest.mark.parametrize("encoding, shape", [("rgb8", (4, 6, 4)), ("bgr8", (4, 6, 1)), ("rgb8", (4, 6, 2))])
+def test_numpy_to_image_refuses_a_colour_array_of_another_channel_count(encoding, shape):
+    """A 4-channel array written as rgb8 would give data longer than step x height."""
+    with pytest.raises(ImageError, match=f"{encoding} needs a uint8 array of 3 dimensions"):
+        numpy_to_image(np.zeros(shape, np.uint8), encoding, Image().header)
+
+
+def test_compressed_images_travel_with_the_image_qos_as_raw_images_and_camera_info_do():
+    for name in ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage", "sensor_msgs/msg/CameraInfo"):
+        assert qos_for_type(name) is IMAGE_QOS, name
+
+
+# Calibration: a camera_info that differs from the one in use in any field the camera is built
+# from is a new calibration (taken, or refused), never a repeat.
+
+QVGA_CAMERA = CameraModel(320, 240, np.array([[300.0, 0.0, 160.0], [0.0, 300.0, 120.0], [0.0, 0.0, 1.0]]),
+                          np.array([-0.2, 0.05, 0.001, -0.001, 0.0]))
+
+
+def _info(**changes) -> CameraInfo:
+    """QVGA_CAMERA's camera_info with the fields named changed (``roi_*``: those of its region of interest)."""
+    msg = camera_info_msg(QVGA_CAMERA)
+    for name, value in changes.items():
+        if name.startswith("roi_"):
+            setattr(msg.roi, name[4:], value)
+        else:
+            setattr(msg, name, value)
+    return msg
+
+
+def test_a_camera_info_of_another_height_only_is_a_new_calibration_of_that_height():
+    calibration = Calibration()
+    assert calibration.update(_info())
+    assert calibration.update(_info(height=250))
+    assert (calibration.camera.width, calibration.camera.height) == (320, 250)
+    assert not calibration.update(_info(height=250))  # a repeat
+
+
+def test_a_camera_info_of_another_width_only_is_a_new_calibration_of_that_width():
+    calibration = Calibration()
+    assert calibration.update(_info())
+    assert calibration.update(_info(width=330))
+    assert (calibration.camera.width, calibration.camera.height) == (330, 240)
+
+
+@pytest.mark.parametrize("changes, message", [
+    ({"r": [0.0, -1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0]}, "R must be identity"),
+    ({"binning_x": 2}, "binning 2x0"),
+    ({"binning_y": 2}, "binning 0x2"),
+    ({"roi_x_offset": 8}, "region of interest"),
+    ({"roi_y_offset": 8}, "region of interest"),
+    ({"roi_width": 160, "roi_height": 120}, "region of interest"),
+])
+def test_a_camera_info_that_changes_only_an_unsupported_field_is_refused_not_taken_for_a_repeat(changes, message):
+    calibration = Calibration()
+    assert calibration.update(_info())
+    with pytest.raises(CameraInfoError, match=message):
+        calibration.update(_info(**changes))
+    assert calibration.camera.width == 320 and message in calibration.refused
+    assert calibration.update(_info()) is False  # the calibration in use, again: a repeat
+    assert calibration.camera.height == 240
+
+
+def test_the_reason_of_a_refusal_is_kept_until_a_calibration_is_taken():
+    calibration = Calibration(rectified=True)
+    with pytest.raises(CameraInfoError):
+        calibration.update(_info())  # distortion on a rectified topic
+    assert "distortion" in calibration.refused
+    assert "refused: " in calibration.waiting_for("no camera_info")
+    assert calibration.update(_info(d=[0.0] * 5))
+    assert calibration.refused == "" and calibration.waiting_for("no camera_info") == "no camera_info"
+
+
+def test_a_camera_info_that_changes_only_the_distortion_model_is_a_new_calibration():
+    """An equidistant lens with the same (zero) coefficients still projects θ, not tan θ."""
+    calibration = Calibration()
+    assert calibration.update(_info(d=[0.0] * 4, distortion_model="plumb_bob"))
+    assert calibration.update(_info(d=[0.0] * 4, distortion_model="equidistant"))
+    assert calibration.camera.distortion_model == "equidistant"
+
+
+# LandingNode: the parameters a nested configuration declares, the throttle of drop logs, and the
+# level of /diagnostics report by report. Callbacks are called directly.
+
+
+@dataclass(frozen=True)
+class _Deep:
+    gain: float = 1.5
+
+
+@dataclass(frozen=True)
+class _Middle:
+    deep: _Deep = _Deep()
+    count: int = 2
+
+
+@dataclass(frozen=True)
+class _NestedConfig:
+    middle: _Middle = _Middle()
+    mode: str = "fast"
+
+
+class _NestedProbe(LandingNode):
+    def __init__(self, **kwargs):
+        super().__init__("base_probe", **kwargs)
+        self.config = self.load_config(_NestedConfig)
+
+
+def test_a_nested_group_two_levels_deep_declares_its_defaults_under_the_full_dotted_name(ros):
+    node = ros.add(_NestedProbe(context=ros.context))
+    assert node.config == _NestedConfig()
+    assert node.get_parameter("middle.deep.gain").value == 1.5
+    assert node.get_parameter("middle.count").value == 2
+    assert not node.has_parameter("deep.gain")
+
+
+def test_drops_of_one_kind_are_logged_at_most_once_a_second_and_other_kinds_still_are(ros, monkeypatch):
+    node = ros.add(_Probe(context=ros.context))
+    logged = []
+    monkeypatch.setattr(node, "get_logger", lambda: types.SimpleNamespace(error=logged.append))
+    clock = [500.0]
+    monkeypatch.setattr(base.time, "monotonic", lambda: clock[0])
+    node.drop("pose a")  # kind "message" first, then another kind at the same instant
+    node.drop("link down", kind="mavlink")
+    assert logged == ["dropped: pose a", "dropped: link down"]
+    clock[0] += 0.5  # half a second on: neither kind again
+    node.drop("pose b")
+    node.drop("link down", kind="mavlink")
+    assert len(logged) == 2
+    clock[0] += 0.5  # a second after the first
+    node.drop("pose c")
+    assert logged[2:] == ["dropped: pose c"]
+    assert node.counters["dropped"] == 5
+
+
+def test_diagnostics_warn_only_for_drops_since_the_last_report(ros):
+    node = ros.add(_Probe(context=ros.context))
+    reports = []
+    node._diagnostics = types.SimpleNamespace(publish=reports.append)
+    node.drop("bad thing", count=3)
+    node.publish_diagnostics()
+    node.publish_diagnostics()  # nothing dropped since: OK again
+    node.drop("worse thing")
+    node.publish_diagnostics()
+    levels = [r.status[0].level for r in reports]
+    assert levels == [DiagnosticStatus.WARN, DiagnosticStatus.OK, DiagnosticStatus.WARN]
+    assert reports[0].status[0].message.startswith("dropped 3 in the last")
+    assert reports[1].status[0].message == "ok"
+    assert reports[2].status[0].message.startswith("dropped 1 in the last")
+    values = {kv.key: kv.value for kv in reports[2].status[0].values}
+    assert values["dropped"] == "4" and values["last_error"] == "worse thing"

@@ -1,4 +1,5 @@
-"""``gcs_bridge`` in-process over DDS: pose → landing guidance and MAVLink; bad input dropped."""
+"""``gcs_bridge`` in-process over DDS: pose → landing guidance and MAVLink; bad input dropped. And its
+callbacks called directly: what it hands the core of a ``uav/pose`` and the stamp of the guidance it publishes."""
 
 import math
 import os
@@ -6,6 +7,8 @@ import signal
 import socket
 import subprocess
 import sys
+import time
+import types
 from pathlib import Path
 
 import numpy as np
@@ -30,6 +33,7 @@ from uav_landing_vision.nodes.qos import RELIABLE_QOS
 PARAMS = Path(__file__).parents[2] / "config" / "gcs_bridge.yaml"
 # libfaketime (Debian's libfaketime, in `make apt`): a process's system clock, set from a file
 FAKETIME_LIBS = sorted(Path("/usr/lib").glob("*/faketime/libfaketimeMT.so.1"))
+NS = 1_000_000_000
 
 
 @pytest.fixture
@@ -68,14 +72,19 @@ class Rig:
         return any(math.isfinite(g.range) for g in self.guidance)
 
     def pose(self, x=0.5, y=-2.0, z=30.0, quat=(0.0, 0.0, 0.0, 1.0), frame_id="camera_optical_frame"):
-        msg = PoseWithCovarianceStamped()
-        msg.header.stamp = self.ros.probe.get_clock().now().to_msg()
-        msg.header.frame_id = frame_id
-        p, q = msg.pose.pose.position, msg.pose.pose.orientation
-        p.x, p.y, p.z = x, y, z
-        q.x, q.y, q.z, q.w = quat
-        msg.pose.covariance = [0.01 if i % 7 == 0 else 0.0 for i in range(36)]
-        return msg
+        """A pose stamped now, covariance 0.01 I."""
+        return pose_msg(self.ros.probe.get_clock().now().nanoseconds, [x, y, z], quat, np.eye(6) * 0.01, frame_id)
+
+
+def pose_msg(stamp_ns: int, position, quat, covariance, frame_id="camera_optical_frame") -> PoseWithCovarianceStamped:
+    msg = PoseWithCovarianceStamped()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, NS)
+    msg.header.frame_id = frame_id
+    p, q = msg.pose.pose.position, msg.pose.pose.orientation
+    p.x, p.y, p.z = (float(v) for v in position)
+    q.x, q.y, q.z, q.w = (float(v) for v in quat)
+    msg.pose.covariance = [float(v) for v in np.ravel(covariance)]
+    return msg
 
 
 def shipped_params() -> dict:
@@ -403,3 +412,128 @@ def test_a_signing_timestamp_file_out_of_reach_fails_start_up(ros, tmp_path):
     with pytest.raises(ConfigError, match=r"mavlink.signing_timestamp_file: .*signing timestamp file .*/missing/t: cannot write it"):
         GcsBridgeNode(context=ros.context, cli_args=["--ros-args", "--params-file", str(PARAMS)],
                       parameter_overrides=overrides)
+
+
+# Callbacks called directly (no DDS traffic).
+
+
+@pytest.fixture
+def node(ros):
+    """The bridge, its guidance collected in ``node.published`` instead of published."""
+    made = ros.add(GcsBridgeNode(context=ros.context, cli_args=["--ros-args", "--params-file", str(PARAMS)],
+                                 parameter_overrides=[Parameter("mavlink.connection", value="udpout:127.0.0.1:9")]))
+    made.published = []
+    made._guidance = types.SimpleNamespace(publish=made.published.append)
+    return made
+
+
+def _awkward_stamp(node) -> int:
+    """A stamp near the node's clock whose float seconds differ between sec + nanosec·1e-9 and
+    ns·1e-9 (about half of all stamps do): a key computed one way is not found the other way."""
+    ns = node.get_clock().now().nanoseconds
+    while True:
+        sec, nanosec = divmod(ns, NS)
+        if ns * 1e-9 != sec + nanosec * 1e-9:
+            return ns
+        ns += 7919
+
+
+def _spd(rng) -> np.ndarray:
+    a = rng.normal(size=(6, 6))
+    return a @ a.T * 1e-3 + np.diag([0.01, 0.02, 0.03, 0.004, 0.005, 0.006])
+
+
+def test_the_core_gets_position_xyz_quaternion_xyzw_and_the_covariance_as_sent(node, monkeypatch):
+    rng = np.random.default_rng(11)
+    calls = []
+    real = node._bridge.on_pose
+
+    def recording(*args):
+        calls.append(args)
+        return real(*args)
+
+    monkeypatch.setattr(node._bridge, "on_pose", recording)
+    rotation = Rotation.from_euler("ZYX", [35.0, -12.0, 7.0], degrees=True)
+    cov = _spd(rng)
+    stamp = _awkward_stamp(node)
+    node._on_pose(pose_msg(stamp, [0.5, -2.0, 30.0], rotation.as_quat(), cov))  # scipy: scalar last
+    assert node.counters["dropped"] == 0, node.last_error
+    (stamp_s, position, quat, covariance, _now), = calls
+    assert stamp_s == stamp * 1e-9
+    assert tuple(position) == (0.5, -2.0, 30.0)
+    np.testing.assert_allclose(Rotation.from_quat(quat).as_matrix(), rotation.as_matrix(), atol=1e-12)
+    np.testing.assert_array_equal(np.asarray(covariance, float).reshape(6, 6), cov)  # row-major, as sent
+
+
+def test_guidance_of_a_tracked_pose_carries_that_poses_header_stamp_to_the_nanosecond(node):
+    cov = np.diag([0.01, 0.01, 0.01, 0.001, 0.001, 0.001])
+    for _ in range(20):  # more poses than the node keeps stamps of (16), each stamp of the awkward kind
+        stamp = _awkward_stamp(node)
+        msg = pose_msg(stamp, [0.5, -2.0, 30.0], [0.0, 0.0, 0.0, 1.0], cov)
+        node._on_pose(msg)
+        node._on_status(TrackerStatus(header=msg.header, state=TrackerStatus.TRACKING))
+        node._tick()
+        g = node.published[-1]
+        assert np.isfinite(g.range), node.last_error
+        assert (g.header.stamp.sec, g.header.stamp.nanosec) == divmod(stamp, NS)
+        assert g.header.frame_id == "landing"
+    assert node.counters["dropped"] == 0
+
+
+def test_a_status_stamped_a_fraction_of_a_second_after_the_pose_vouches_for_it_and_one_before_does_not(node):
+    cov = np.diag([0.01, 0.01, 0.01, 0.001, 0.001, 0.001])
+    stamp = node.get_clock().now().nanoseconds - 50_000_000  # fresh: 50 ms ago
+    if stamp % NS < 20_000_000:
+        stamp -= 30_000_000  # the status below, 10 ms before, is then in the same second
+    msg = pose_msg(stamp, [0.5, -2.0, 30.0], [0.0, 0.0, 0.0, 1.0], cov)
+    node._on_pose(msg)
+    before = TrackerStatus(state=TrackerStatus.TRACKING)
+    before.header.stamp.sec, before.header.stamp.nanosec = divmod(stamp - 10_000_000, NS)  # 10 ms earlier, same second
+    node._on_status(before)
+    node._tick()
+    assert np.isnan(node.published[-1].range)  # not vouched for: the status is of an earlier frame
+    node._on_status(TrackerStatus(header=msg.header, state=TrackerStatus.TRACKING))
+    node._tick()
+    assert np.isfinite(node.published[-1].range)
+
+
+def test_a_pose_in_another_frame_than_the_camera_mounts_is_dropped_before_the_core(node, monkeypatch):
+    monkeypatch.setattr(node._bridge, "on_pose", lambda *a: pytest.fail("handed to the core"))
+    stamp = node.get_clock().now().nanoseconds
+    node._on_pose(pose_msg(stamp, [0.5, -2.0, 30.0], [0.0, 0.0, 0.0, 1.0], np.eye(6) * 0.01, frame_id="map"))
+    assert node.counters["dropped"] == 1 and "in frame 'map'" in node.last_error
+
+
+def test_a_stale_pose_is_counted_as_stale_not_dropped(node):
+    stamp = node.get_clock().now().nanoseconds - 2 * NS  # older than stale_timeout_s (0.3 s)
+    node._on_pose(pose_msg(stamp, [0.5, -2.0, 30.0], [0.0, 0.0, 0.0, 1.0], np.eye(6) * 0.01))
+    assert node.counters["stale_poses"] == 1 and node.counters["dropped"] == 0
+    assert node._pose_stamps == {}
+
+
+def test_frames_the_link_could_not_send_are_counted_once_each(node):
+    node._bridge.close()
+    stats = types.SimpleNamespace(dropped=3, written=10, failures=1, restored=0, up=False, last_error="refused")
+    node._bridge = types.SimpleNamespace(link_stats=stats, signing_store_error="", close=lambda: None)
+    node._report_link()
+    assert node.counters["dropped"] == 3 and node.counters["mavlink_dropped"] == 3
+    node._report_link()  # nothing more lost
+    assert node.counters["dropped"] == 3
+    stats.dropped = 5
+    node._report_link()
+    assert node.counters["dropped"] == 5 and "2 MAVLink frame(s) not sent" in node.last_error
+
+
+def test_a_status_is_refused_while_a_second_tracker_publishes_statuses(ros, node):
+    """A status of another tracker could vouch for this tracker's pose of the same stamp."""
+    for _ in range(2):
+        ros.probe.create_publisher(TrackerStatus, "uav/tracker_status", 10)
+    deadline = time.monotonic() + 30.0
+    while node.count_publishers("uav/tracker_status") < 2 and time.monotonic() < deadline:
+        time.sleep(0.05)  # not spinning: the node's ticks must not count drops of their own
+    assert node.count_publishers("uav/tracker_status") == 2, "graph discovery"
+    calls = []
+    node._bridge.on_tracker_state = lambda *args: calls.append(args)
+    node._on_status(TrackerStatus(state=TrackerStatus.TRACKING))
+    assert calls == [] and node.counters["dropped"] == 1
+    assert "2 publishers of uav/tracker_status" in node.last_error

@@ -1,5 +1,6 @@
 """``tracker`` in-process over DDS on rendered frames with hypotheses from the boosting core:
-the pose converges, nothing is published without an estimate, bad input is dropped."""
+the pose converges, nothing is published without an estimate, bad input is dropped; and its
+time-line handling with callbacks called directly (no DDS traffic, no camera)."""
 
 import dataclasses
 from pathlib import Path
@@ -21,6 +22,7 @@ from uav_landing_vision.config import ConfigError
 from uav_landing_vision.geometry import geodesic_angle
 from uav_landing_vision.nodes.image import image_to_numpy
 from uav_landing_vision.nodes.poses import numpy_to_pose, pose_to_numpy
+from uav_landing_vision.nodes import sync
 from uav_landing_vision.nodes import tracker as tracker_node
 from uav_landing_vision.nodes.qos import IMAGE_QOS, RELIABLE_QOS
 from uav_landing_vision.nodes.tracker import BoostedPoses, TrackerNode
@@ -29,6 +31,7 @@ from uav_landing_vision.tracking.upf import STAGES, Tracker, load_tracker_config
 
 PARAMS = Path(__file__).parents[2] / "config" / "tracker.yaml"
 TIMEOUT_S = 0.3
+NS = 1_000_000_000
 
 
 @pytest.fixture(scope="module")
@@ -430,3 +433,64 @@ def test_a_renderer_that_fails_its_self_test_fails_start_up(ros, shift_rasterisa
     shift_rasterisation(0.25)
     with pytest.raises(ConfigError, match="OpenGL: this machine's OpenGL draws the UAV unlike the reference: FAILED"):
         TrackerNode(context=ros.context, cli_args=["--ros-args", "--params-file", str(PARAMS)])
+
+
+# Callbacks called directly (no DDS traffic, no camera): a replay started again drops the old
+# time-line's waiting stamps only, not the new one's.
+
+
+@pytest.fixture
+def node(ros):
+    return ros.add(TrackerNode(context=ros.context, cli_args=["--ros-args", "--params-file", str(PARAMS)],
+                               parameter_overrides=[Parameter("particles", value=M), Parameter("boosted", value=M - M0)]))
+
+
+def _hypotheses(ns: int) -> PoseHypotheses:
+    """One pose 20 m ahead, stamped ``ns``."""
+    msg = hypotheses_msg(0, [([0.0, 0.0, 20.0], [0.0, 0.0, 0.0, 1.0])])
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(ns, NS)
+    return msg
+
+
+def _image(ns: int) -> Image:
+    return image_msg(np.zeros((4, 6, 3), np.uint8), "rgb8", *divmod(ns, NS))
+
+
+def test_a_new_time_line_drops_the_old_ones_waiting_stamps_and_keeps_its_own_that_came_first(node):
+    node._last_stamp = 100 * NS  # the old time-line's last tracked frame
+    node._on_hypotheses(_hypotheses(100 * NS + 33_000_000))  # the old time-line's next, its image never came
+    node._on_hypotheses(_hypotheses(1 * NS + 33_000_000))  # the new time-line's second frame, early
+    assert len(node._cache) == 2 and node.counters["dropped"] == 0
+    node._on_image(_image(1 * NS))  # the new time-line's first frame: 99 s behind, a restart
+    assert node._last_stamp == -1
+    assert node.counters["dropped"] == 1 and "1 stamp(s) of the old time-line" in node.last_error
+    assert sorted(node._cache._entries) == [1 * NS, 1 * NS + 33_000_000]
+
+
+def test_an_image_stamped_as_the_last_tracked_frame_is_dropped_at_once(node):
+    node._last_stamp = 5 * NS
+    node._on_image(_image(5 * NS))
+    assert node.counters["dropped"] == 1 and "is not after the last tracked frame" in node.last_error
+    assert len(node._cache) == 0
+
+
+def test_malformed_hypotheses_leave_their_frame_to_be_tracked_by_prediction_at_once(node):
+    bad = _hypotheses(2 * NS)
+    bad.poses[0].orientation.w = 2.0  # not a unit quaternion
+    node._on_hypotheses(bad)
+    assert node.counters["dropped"] == 1 and "uav/pose_hypotheses rejected" in node.last_error
+    assert node._cache._entries[2 * NS].items == {"hypotheses": None}  # the frame's pair: no hypotheses
+    node._on_image(_image(2 * NS))  # completes at once: held for the calibration, not waiting for a timeout
+    assert len(node._cache) == 0 and len(node._uncalibrated) == 1
+    assert node._uncalibrated[0][2] is None
+
+
+def test_of_frames_expiring_together_only_the_newest_is_tracked_the_older_are_skipped(node, monkeypatch):
+    for k in range(3):
+        node._on_image(_image(3 * NS + k * 33_000_000))
+    assert len(node._cache) == 3
+    now = sync.time.monotonic()
+    monkeypatch.setattr(sync.time, "monotonic", lambda: now + 60.0)  # all three waited past the timeout
+    node._on_deadline()
+    assert node.counters["skipped"] == 2 and node.counters["without_hypotheses"] == 1
+    assert [f[0].header.stamp.nanosec for f in node._uncalibrated] == [66_000_000]  # held for the calibration

@@ -1,4 +1,7 @@
-"""``undistort`` in-process over DDS: rectified frames, and every bad input dropped without a crash."""
+"""``undistort`` in-process over DDS: rectified frames, and every bad input dropped without a crash; and,
+callbacks called directly, the ``interpolation`` parameter is the filter the frames are rectified with."""
+
+import types
 
 import cv2
 import numpy as np
@@ -270,3 +273,42 @@ def test_calibration_from_a_file_parameter(ros, tmp_path):
 def test_bad_parameters_fail_start_up(ros, override, message):
     with pytest.raises(ConfigError, match=message):
         Undistort(context=ros.context, parameter_overrides=[override])
+
+
+@pytest.fixture
+def make_node(ros):
+    """Undistort nodes of a given ``interpolation``, their outputs collected in ``rect`` and ``rect_info``."""
+
+    def make(interpolation: str):
+        node = ros.add(Undistort(context=ros.context, parameter_overrides=[Parameter("interpolation", value=interpolation)]))
+        node.rect, node.rect_info = [], []
+        node._image_pub = types.SimpleNamespace(publish=node.rect.append)
+        node._info_pub = types.SimpleNamespace(publish=node.rect_info.append)
+        return node
+
+    return make
+
+
+def _rectify(node, pixels: np.ndarray) -> np.ndarray:
+    node._on_camera_info(camera_info_msg(SMALL_CAMERA))
+    msg = image_msg(pixels, "rgb8", sec=3)
+    node._on_image(msg)
+    assert node.counters["dropped"] == 0, node.last_error
+    (rect,) = node.rect
+    assert rect.header == msg.header and node.rect_info[0].header == msg.header
+    return image_to_numpy(rect)
+
+
+def test_each_interpolation_rectifies_with_its_own_opencv_filter(make_node):
+    pixels = rgb_frame(SMALL_CAMERA, 21)
+    maps = SMALL_CAMERA.undistortion_maps()
+    linear = cv2.remap(pixels, *maps, cv2.INTER_LINEAR)
+    cubic = cv2.remap(pixels, *maps, cv2.INTER_CUBIC)
+    assert not np.array_equal(linear, cubic)  # the noise frame tells the filters apart
+    np.testing.assert_array_equal(_rectify(make_node("linear"), pixels), linear)
+    np.testing.assert_array_equal(_rectify(make_node("cubic"), pixels), cubic)
+    nearest = _rectify(make_node("nearest"), pixels)
+    # Nearest copies pixels: every output pixel is one of the frame's (or the black border).
+    sources = {tuple(p) for p in pixels.reshape(-1, 3)} | {(0, 0, 0)}
+    assert all(tuple(p) in sources for p in nearest.reshape(-1, 3))
+    assert not np.array_equal(nearest, linear)

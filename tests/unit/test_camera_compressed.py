@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from uav_landing_vision.camera import decode_compressed
+from uav_landing_vision.camera.model import MAX_IMAGE_SIDE
 
 
 def _frame(seed: int = 0) -> np.ndarray:
@@ -93,3 +94,17 @@ def test_a_header_of_another_size_than_expected_is_refused_before_decoding(monke
     monkeypatch.undo()
     pixels, _ = decode_compressed(_encode(".png", _frame()), "png", size=(64, 48))
     assert pixels.shape == (48, 64, 3)
+
+
+@pytest.mark.parametrize("shape", [(MAX_IMAGE_SIDE + 1, 1), (1, MAX_IMAGE_SIDE + 1)])
+def test_a_png_over_the_side_limit_in_either_dimension_is_refused(shape):
+    """A real (small) PNG, one pixel wide or high: refused by its header, whichever side is too long."""
+    data = _encode(".png", np.zeros(shape, np.uint8))
+    height, width = shape
+    with pytest.raises(ValueError, match=f"claims {width}x{height} pixels, over {MAX_IMAGE_SIDE} a side"):
+        decode_compressed(data, "png")
+
+
+def test_a_png_of_the_side_limit_is_decoded():
+    pixels, encoding = decode_compressed(_encode(".png", np.zeros((MAX_IMAGE_SIDE, 1), np.uint8)), "png")
+    assert pixels.shape == (MAX_IMAGE_SIDE, 1) and encoding == "mono8"
