@@ -187,6 +187,8 @@ _PLY_HEAD = ("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\npropert
     [
         # A PLY face naming a vertex it does not have: an IndexError from trimesh before.
         ("beyond.ply", _PLY_HEAD + "3 0 1 9\n", "face index out of range"),
+        # Three vertices are indexed 0..2: index 3 is one past the end.
+        ("one_past.ply", _PLY_HEAD + "3 0 1 3\n", "face index out of range"),
         # A negative PLY index (not a relative reference, as in OBJ) was read as the last vertex.
         ("negative.ply", _PLY_HEAD + "3 0 1 -1\n", "face index out of range"),
         # Coordinates whose squared extent overflows: an OverflowError before.
@@ -220,16 +222,6 @@ def test_upper_case_cad_suffixes_are_accepted(tmp_path):
     upper = lower.rename(tmp_path / "UAV.STL")
     loaded = load_mesh(upper)
     assert loaded.triangle_count == ref.triangle_count and loaded.is_closed
-
-
-def test_a_face_index_equal_to_the_vertex_count_is_out_of_range(tmp_path):
-    """Three vertices are indexed 0..2: index 3 is one past the end."""
-    path = tmp_path / "beyond.ply"
-    path.write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
-                    "element face 1\nproperty list uchar int vertex_indices\nend_header\n"
-                    "-0.5 -0.5 0\n0.5 -0.5 0\n0 0.5 0\n3 0 1 3\n")
-    with pytest.raises(MeshError, match="face index out of range"):
-        load_mesh(path)
 
 
 @pytest.mark.parametrize("collapsed", [[0, 1, 0], [1, 0, 0], [0, 0, 1]])
