@@ -312,6 +312,26 @@ def test_fine_tuning_starts_from_an_exported_model(tmp_path):
         weights_from_onnx(path, other)
 
 
+def test_fine_tuning_starts_from_an_export_whose_convolutions_have_no_bias(tmp_path):
+    """A freshly initialised network folds to zero biases, which the exporter leaves out of its
+    convolutions: such a model is read with zero biases (it was refused as "no convolution")."""
+    import onnx
+    import onnxruntime as ort
+
+    from uav_landing_vision.detection.train import set_training, weights_from_onnx
+
+    torch.manual_seed(2)
+    path = export_onnx(UavDetectorNet(width=16, blocks=(1, 1, 1)).eval(), tmp_path / "fresh.onnx", (640, 384))
+    assert any(n.op_type == "Conv" and len(n.input) == 2 for n in onnx.load(str(path)).graph.node)
+    x = torch.rand(1, 3, 96, 160)
+    expected = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"]).run(None, {"images": x.numpy()})
+    tuned = UavDetectorNet(width=16, blocks=(1, 1, 1))
+    tuned.load_state_dict(weights_from_onnx(path, tuned))
+    set_training(tuned, frozen_normalisation=True)
+    for o, t in zip(expected, tuned(x)):
+        np.testing.assert_allclose(t.detach().numpy(), o, atol=1e-4)
+
+
 @pytest.mark.parametrize("kwargs, message", [
     ({"input_size": (0, 0)}, "input_size"),
     ({"input_size": (-64, 128)}, "input_size"),

@@ -352,7 +352,8 @@ def weights_from_onnx(path, net: UavDetectorNet) -> dict:
     (running mean 0, variance 1, scale √(1 + eps)), so the network computes what the model does
     as long as that BatchNorm is in eval mode (:func:`set_training`). Each ONNX convolution is
     matched to the module named by its weight; the exporter may share equal biases between
-    convolutions, so those are read through the node's inputs."""
+    convolutions, so those are read through the node's inputs, and leaves out a bias that is all
+    zeros (a BatchNorm at its initial state), so a convolution without one has a zero bias."""
     import onnx
     from onnx import numpy_helper
 
@@ -360,8 +361,10 @@ def weights_from_onnx(path, net: UavDetectorNet) -> dict:
     arrays = {i.name: numpy_helper.to_array(i) for i in graph.initializer}
     convs = {}
     for node in graph.node:
-        if node.op_type == "Conv" and len(node.input) == 3 and node.input[1].endswith(".weight"):
-            convs[node.input[1].removesuffix(".weight")] = (arrays[node.input[1]], arrays[node.input[2]])
+        if node.op_type == "Conv" and node.input[1].endswith(".weight"):
+            weight = arrays[node.input[1]]
+            bias = arrays[node.input[2]] if len(node.input) == 3 and node.input[2] else np.zeros(len(weight), weight.dtype)
+            convs[node.input[1].removesuffix(".weight")] = (weight, bias)
     state = {k: v.clone() for k, v in net.state_dict().items()}
     modules = dict(net.named_modules())
     for name, module in modules.items():
