@@ -1,5 +1,5 @@
 """Detection dataset: Fig. 4.4 labels (model outline → oriented box → ROI), YOLO labels, landing frames,
-determinism."""
+determinism; the random poses, photometric jitter, user-image crops and the labels of drawn samples."""
 
 import re
 from dataclasses import replace
@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from uav_landing_vision.camera import CameraModel, save_camera_info_yaml
-from uav_landing_vision.detection.dataset import (DatasetConfig, generate, model_roi, oriented_box_tie, outline_roi,
-                                                  read_labels, yolo_line)
+from uav_landing_vision.detection.dataset import (DatasetConfig, generate, image_rng, model_roi, oriented_box_tie,
+                                                  outline_roi, photometric, random_pose, read_labels, yolo_line)
 from uav_landing_vision.detection.detector import box_iou
 
 
@@ -348,3 +348,221 @@ def test_the_default_camera_is_the_shipped_one_not_a_camera_yaml_in_the_working_
     assert (camera.width, camera.height) == (shipped.width, shipped.height)
     np.testing.assert_array_equal(camera.K, shipped.K)
     assert dataset_camera(DatasetConfig(camera_info="camera.yaml")).width == 192  # named: read as given
+
+
+# --- outlines behind the camera, per-image seeds, the pose mix, jitter, user crops, drawn labels ----
+
+def test_a_model_reaching_behind_the_camera_has_no_label():
+    vertices = np.array([[-0.1, 0.0, 0.0], [0.1, 0.0, 0.0], [0.0, 0.1, 0.0], [0.0, 0.0, -2.0]])
+    assert model_roi(vertices, K, IDENTITY, [0.0, 0.0, 1.0], 100, 80) is None  # one vertex at z = −1
+    assert model_roi(vertices, K, IDENTITY, [0.0, 0.0, 3.0], 100, 80) is not None  # all in front
+
+
+@pytest.mark.parametrize("oriented", [True, False])
+def test_an_outline_beside_the_image_in_one_axis_only_has_no_label(oriented):
+    """Left of the image (x −20…−10) though within its rows: the clipped ROI is empty."""
+    outline = np.array([[-20.0, 10.0], [-10.0, 10.0], [-10.0, 20.0], [-20.0, 20.0]])
+    assert outline_roi(outline, 100, 80, oriented) is None
+    below = np.array([[10.0, 90.0], [20.0, 90.0], [20.0, 95.0], [10.0, 95.0]])  # below the 80 rows
+    assert outline_roi(below, 100, 80, oriented) is None
+
+
+def test_each_image_draws_from_its_own_seed_and_index():
+    first = [image_rng(3, i).random(4) for i in range(3)]
+    assert not np.allclose(first[0], first[1]) and not np.allclose(first[1], first[2])
+    assert not np.allclose(image_rng(3, 1).random(4), image_rng(4, 1).random(4))
+    np.testing.assert_array_equal(image_rng(3, 1).random(4), first[1])
+
+
+CAMERA = CameraModel(1280, 720, np.array([[1100.0, 0, 640.0], [0, 1100.0, 360.0], [0, 0, 1]]))
+
+
+def _poses(cfg, n, seed=0):
+    rng = np.random.default_rng(seed)
+    return zip(*[random_pose(rng, CAMERA, cfg) for _ in range(n)])
+
+
+def test_pose_range_is_log_uniform_and_the_centre_projects_into_the_image():
+    quats, trans = _poses(DatasetConfig(range_m=(5.0, 150.0), partial_fraction=0.0), 2000)
+    trans = np.array(trans)
+    r = np.linalg.norm(trans, axis=1)
+    assert r.min() >= 5.0 - 1e-9 and r.max() <= 150.0 + 1e-9
+    # log r uniform on [ln 5, ln 150]: mean 3.31 (a uniform r would give ≈ 4.0), sd 0.98
+    assert np.mean(np.log(r)) == pytest.approx((np.log(5) + np.log(150)) / 2, abs=0.1)
+    assert np.median(r) == pytest.approx(np.sqrt(5 * 150), rel=0.15)
+    u = 1100.0 * trans[:, 0] / trans[:, 2] + 640.0
+    v = 1100.0 * trans[:, 1] / trans[:, 2] + 360.0
+    assert u.min() >= 0 and u.max() <= 1280 and v.min() >= 0 and v.max() <= 720
+    assert u.min() < 0.05 * 1280 and u.max() > 0.95 * 1280  # the whole width, not only the left
+    assert v.min() < 0.05 * 720 and v.max() > 0.95 * 720
+
+
+def test_partial_cases_put_the_centre_up_to_a_third_of_the_frame_outside():
+    _, trans = _poses(DatasetConfig(partial_fraction=1.0), 2000, seed=1)
+    trans = np.array(trans)
+    u = (1100.0 * trans[:, 0] / trans[:, 2] + 640.0) / 1280
+    v = (1100.0 * trans[:, 1] / trans[:, 2] + 360.0) / 720
+    assert u.min() >= -0.3 - 1e-9 and u.max() <= 1.3 + 1e-9 and v.min() >= -0.3 - 1e-9 and v.max() <= 1.3 + 1e-9
+    assert u.min() < -0.25 and u.max() > 1.25 and v.min() < -0.25 and v.max() > 1.25
+    outside = (u < 0) | (u > 1) | (v < 0) | (v > 1)
+    assert np.mean(outside) == pytest.approx(1 - (1 / 1.6) ** 2, abs=0.05)
+    _, none = _poses(DatasetConfig(partial_fraction=0.0), 300, seed=2)
+    none = np.array(none)
+    assert np.all(np.abs(1100.0 * none[:, 0] / none[:, 2]) <= 640.0 + 1e-6)
+
+
+def test_sixty_percent_of_the_non_approach_attitudes_are_landing_like():
+    """Landing-like attitudes (±60° about x, ±30° about y from facing the camera) keep the nose's
+    optical-axis component ≤ −cos 60° cos 30°; uniformly random ones pass it 71.7 % of the time,
+    so 40 % random gives 0.4 · 0.717 ≈ 0.29 beyond it."""
+    from scipy.spatial.transform import Rotation
+
+    quats, _ = _poses(DatasetConfig(approach_fraction=0.0), 4000, seed=3)
+    nose_z = Rotation.from_quat(np.array(quats)).apply([1.0, 0.0, 0.0])[:, 2]
+    beyond = np.mean(nose_z > -np.cos(np.radians(60)) * np.cos(np.radians(30)) + 1e-9)
+    assert beyond == pytest.approx(0.4 * (1 + np.cos(np.radians(60)) * np.cos(np.radians(30))) / 2, abs=0.03)
+
+
+def _jitter_cfg(**kwargs):
+    return DatasetConfig(**{"blur_probability": 0.0, "noise_sigma": (0.0, 0.0), **kwargs})
+
+
+def test_photometric_jitter_keeps_the_order_of_the_colour_channels():
+    image = np.empty((8, 8, 3), np.uint8)
+    image[:] = (200, 120, 40)
+    for seed in range(20):
+        out = photometric(image, np.random.default_rng(seed), _jitter_cfg()).astype(int)
+        assert np.all(out[..., 0] > out[..., 1]) and np.all(out[..., 1] > out[..., 2])
+
+
+def test_no_blur_probability_leaves_a_step_edge_sharp():
+    image = np.full((32, 32, 3), 60, np.uint8)
+    image[:, 16:] = 190
+    for seed in range(20):
+        out = photometric(image, np.random.default_rng(seed), _jitter_cfg())
+        assert len(np.unique(out[..., 0])) <= 2
+        assert len(np.unique(out[:, :16, 0])) == 1 and len(np.unique(out[:, 16:, 0])) == 1
+
+
+def test_sensor_noise_sigma_is_in_grey_levels():
+    image = np.full((64, 64, 3), 128, np.uint8)
+    for seed in range(5):
+        out = photometric(image, np.random.default_rng(seed), _jitter_cfg(noise_sigma=(3.0, 3.0))).astype(float)
+        assert 2.0 < out.std() < 4.0
+
+
+def test_user_image_crops_keep_the_cameras_aspect_and_reach_the_whole_image(tmp_path):
+    """Crops of the largest camera-shaped window, scaled by 0.4–1: over many draws one spans
+    nearly the whole width of a 4:3 picture, and each has the camera's 16:9 shape."""
+    from uav_landing_vision.detection.dataset import BackgroundSource
+
+    y, x = np.mgrid[0:150, 0:200]
+    coded = np.stack([x, y, np.zeros_like(x)], axis=-1).astype(np.uint8)  # B = x, G = y (BGR file)
+    cv2.imwrite(str(tmp_path / "pic.png"), coded)
+    camera = CameraModel(96, 54, np.array([[82.0, 0, 48.0], [0, 82.0, 27.0], [0, 0, 1]]))
+    source = BackgroundSource(camera, DatasetConfig(families=("images",), image_dir=str(tmp_path)))
+    spans = []
+    for seed in range(40):
+        rgb = source.draw(np.random.default_rng(seed), 0).astype(float)
+        assert rgb.shape == (54, 96, 3) and np.all(rgb[..., 0] == 0)  # RGB: the B code is last
+        xs, ys = rgb[27, :, 2], rgb[:, 48, 1]
+        span_x, span_y = abs(xs[-1] - xs[0]) * 96 / 95, abs(ys[-1] - ys[0]) * 54 / 53
+        assert span_x / span_y == pytest.approx(96 / 54, rel=0.08)
+        spans.append(span_x)
+    assert max(spans) > 0.9 * 200 and min(spans) > 0.38 * 200
+
+
+def _small_camera_yaml(tmp_path):
+    from uav_landing_vision.camera import save_camera_info_yaml
+
+    save_camera_info_yaml(CameraModel(192, 108, np.array([[165.0, 0, 96.0], [0, 165.0, 54.0], [0, 0, 1]])),
+                          tmp_path / "cam.yaml")
+    return str(tmp_path / "cam.yaml")
+
+
+@pytest.mark.parametrize("label_box, partial", [("extent", 1.0), ("oriented", 1.0)])
+def test_a_drawn_sample_is_labelled_by_the_model_roi_of_its_pose_once_enough_pixels_pass_the_coverage(
+        tmp_path, monkeypatch, label_box, partial):
+    """The label is model_roi of the pose drawn last (with the configured box kind and the mesh's
+    faces for a model across the edge), and that pose has ≥ min_visible_px pixels of coverage ≥
+    coverage_threshold; every pose redrawn before it had fewer."""
+    from uav_landing_vision.detection import dataset
+
+    cfg = DatasetConfig(count=1, seed=2, camera_info=_small_camera_yaml(tmp_path), families=("normal",),
+                        banks_per_family=1, negative_fraction=0.0, partial_fraction=partial, range_m=(8.0, 120.0),
+                        min_visible_px=12, label_box=label_box)
+    gen = dataset.SampleGenerator(cfg)
+    try:
+        poses, alphas = [], []
+        draw, shade = dataset.random_pose, gen.renderer.shaded
+        monkeypatch.setattr(dataset, "random_pose", lambda *a: poses.append(draw(*a)) or poses[-1])
+
+        def shaded(*args, **kwargs):
+            rgb, alpha = shade(*args, **kwargs)
+            alphas.append(alpha)
+            return rgb, alpha
+
+        monkeypatch.setattr(gen.renderer, "shaded", shaded)
+        labelled = 0
+        for index in range(10):
+            poses.clear(), alphas.clear()
+            _, box = gen.sample(index)
+            passing = [int(np.count_nonzero(a >= cfg.coverage_threshold)) for a in alphas]
+            if box is None:
+                continue
+            labelled += 1
+            assert passing[-1] >= cfg.min_visible_px and all(p < cfg.min_visible_px for p in passing[:-1])
+            quat, trans = poses[-1]
+            want = model_roi(gen.mesh.vertices, gen.camera.K, quat, trans, 192, 108,
+                             oriented=label_box == "oriented", faces=gen.mesh.faces)
+            np.testing.assert_allclose(box, want)
+        assert labelled >= 6
+    finally:
+        gen.release()
+
+
+def test_the_summary_counts_the_images_with_a_label(tmp_path):
+    from uav_landing_vision.detection.dataset import generate
+
+    cfg = DatasetConfig(count=6, seed=4, camera_info=_small_camera_yaml(tmp_path), families=("normal",),
+                        banks_per_family=1, negative_fraction=0.5)
+    summary = generate(cfg, tmp_path / "data", progress=False)
+    labelled = sum(bool(p.read_text().strip()) for p in (tmp_path / "data" / "labels").glob("*.txt"))
+    assert 0 < labelled < 6 and summary["positives"] == labelled
+
+
+class _StubLanding:
+    def __init__(self):
+        self.calls = []
+
+    def sample(self, rng, with_uav=True):
+        self.calls.append(with_uav)
+        return np.zeros((4, 4, 3), np.uint8), (np.array([0.0, 0.0, 2.0, 2.0]) if with_uav else None), None
+
+
+def test_landing_frames_and_their_negatives_come_in_the_configured_fractions(monkeypatch):
+    """The decisions alone: landing frames and backgrounds stubbed; a background image stops where
+    it would draw a pose."""
+    from uav_landing_vision.detection import dataset
+
+    class BackgroundImage(Exception):
+        pass
+
+    def no_pose(*args):
+        raise BackgroundImage
+
+    monkeypatch.setattr(dataset, "random_pose", no_pose)
+    gen = object.__new__(dataset.SampleGenerator)
+    gen.cfg = DatasetConfig(landing_fraction=0.3, landing_negative_fraction=0.2, negative_fraction=0.0)
+    gen.landing, gen.camera, gen.renderer = _StubLanding(), None, None
+    gen.backgrounds = type("Backgrounds", (), {"draw": lambda self, rng, index: np.zeros((4, 4, 3), np.uint8)})()
+    backgrounds = 0
+    for index in range(600):
+        try:
+            _, box = gen.sample(index)
+            assert (box is not None) == gen.landing.calls[-1]
+        except BackgroundImage:
+            backgrounds += 1
+    assert backgrounds + len(gen.landing.calls) == 600
+    assert len(gen.landing.calls) / 600 == pytest.approx(0.3, abs=0.06)
+    assert np.mean([not c for c in gen.landing.calls]) == pytest.approx(0.2, abs=0.1)

@@ -1,6 +1,10 @@
-"""Training targets and loss, evaluation metrics, and a fresh network exported to ONNX and run
-through the runtime."""
+"""Training targets and loss (against hand-made cases and numpy oracles), the head decode, validation AP,
+evaluation metrics, flipped and cropped training images, the split, warm-up and checkpoints, and a
+fresh network exported to ONNX and run through the runtime."""
 
+import json
+
+import cv2
 import numpy as np
 import pytest
 import torch
@@ -8,8 +12,8 @@ import torch
 from uav_landing_vision.detection.detector import Detector, DetectorConfig, decode, letterbox
 from uav_landing_vision.detection.evaluation import average_precision, match_frame, summarise
 from uav_landing_vision.detection.export import export_onnx
-from uav_landing_vision.detection.network import STRIDES, UavDetectorNet, decode_torch
-from uav_landing_vision.detection.train import build_targets, detection_loss, giou_loss, random_crop
+from uav_landing_vision.detection.network import PRIOR, STRIDES, Head, UavDetectorNet, decode_torch
+from uav_landing_vision.detection.train import build_targets, detection_loss, giou_loss, random_crop, validate
 
 
 def _positives(targets):
@@ -389,3 +393,348 @@ def test_a_resumed_run_ends_as_the_uninterrupted_one(tmp_path, monkeypatch):
     a, b = training.load_checkpoint(whole), training.load_checkpoint(split)
     assert all(torch.equal(a["net"][k], b["net"][k]) for k in a["net"])
     assert [e["loss"] for e in a["log"]["epochs"]] == [e["loss"] for e in b["log"]["epochs"]]
+
+
+# --- training arithmetic against hand-made cases and numpy oracles ----------------------------------
+
+# --- targets ---------------------------------------------------------------------------------
+
+def test_a_box_whose_larger_side_is_exactly_48_px_goes_to_the_stride_16_head():
+    """"stride 8 below 48 px, 16 below 144 px, else 32": 48 and 144 themselves go up a level."""
+    at_48 = _positives(build_targets([torch.tensor([[8.0, 8.0, 56.0, 18.0]])], 256, 256))
+    assert at_48[0] == [] and at_48[1] and at_48[2] == []
+    at_144 = _positives(build_targets([torch.tensor([[8.0, 8.0, 152.0, 18.0]])], 256, 256))
+    assert at_144[0] == [] and at_144[1] == [] and at_144[2]
+    below = _positives(build_targets([torch.tensor([[8.0, 8.0, 55.5, 18.0]])], 256, 256))
+    assert below[0] and below[1] == []
+
+
+def test_the_head_is_chosen_by_the_larger_side_of_a_thin_box():
+    """A 60 × 10 px box (larger side 60) belongs to the stride-16 head, not stride 8 by its 10 px."""
+    cells = _positives(build_targets([torch.tensor([[20.0, 30.0, 80.0, 40.0]])], 128, 128))
+    assert cells[0] == [] and cells[1] and cells[2] == []
+
+
+def test_a_tiny_box_is_positive_only_in_the_cell_holding_its_centre():
+    """A 2 px box at (2, 2): no cell centre (4, 4) lies inside it, yet its own cell is positive."""
+    targets = build_targets([torch.tensor([[1.0, 1.0, 3.0, 3.0]])], 64, 64)
+    assert _positives(targets) == [[(0, 0)], [], []]
+    np.testing.assert_allclose(targets[0][1][0, 0, 0].numpy(), [1, 1, 3, 3])
+
+
+def test_neighbour_cells_count_by_their_centres_at_half_a_stride():
+    """Cell (i, j) of stride 8 has its centre at ((j + ½)·8, (i + ½)·8): the box 1…9 holds no
+    neighbour's centre (12), only its own cell; a tall box 1…9 × 1…25 holds the centres of its
+    column, rows 0–2 (x = 4, y = 4, 12, 20)."""
+    small = _positives(build_targets([torch.tensor([[1.0, 1.0, 9.0, 9.0]])], 64, 64))
+    assert small == [[(0, 0)], [], []]
+    tall = _positives(build_targets([torch.tensor([[1.0, 1.0, 9.0, 25.0]])], 64, 64))
+    assert tall == [[(0, 0), (1, 0), (2, 0)], [], []]
+    wide = _positives(build_targets([torch.tensor([[1.0, 1.0, 25.0, 9.0]])], 64, 96))
+    assert wide == [[(0, 0), (0, 1), (0, 2)], [], []]
+
+
+@pytest.mark.parametrize("order", [(0, 1), (1, 0)])
+def test_a_smaller_box_wins_a_cell_it_shares_with_a_larger_one(order):
+    big, small = torch.tensor([0.0, 0.0, 40.0, 40.0]), torch.tensor([10.0, 10.0, 20.0, 20.0])
+    boxes = torch.stack([(big, small)[k] for k in order])
+    pos, target, stride = build_targets([boxes], 64, 64)[0]
+    assert stride == 8 and pos[0, 1, 1]
+    np.testing.assert_allclose(target[0, 1, 1].numpy(), small.numpy())  # the cell of the small box's centre
+    np.testing.assert_allclose(target[0, 3, 3].numpy(), big.numpy())  # a cell only the big box covers
+
+
+# --- GIoU and the loss -----------------------------------------------------------------------
+
+def _giou_oracle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    out = []
+    for p, t in zip(a, b):
+        iw = max(0.0, min(p[2], t[2]) - max(p[0], t[0]))
+        ih = max(0.0, min(p[3], t[3]) - max(p[1], t[1]))
+        inter = iw * ih
+        union = (p[2] - p[0]) * (p[3] - p[1]) + (t[2] - t[0]) * (t[3] - t[1]) - inter
+        hull = (max(p[2], t[2]) - min(p[0], t[0])) * (max(p[3], t[3]) - min(p[1], t[1]))
+        out.append(1.0 - (inter / union - (hull - union) / hull))
+    return np.array(out)
+
+
+def test_giou_loss_matches_a_brute_force_for_overlapping_nested_and_diagonally_disjoint_boxes():
+    rng = np.random.default_rng(4)
+    lo = rng.uniform(0, 50, (200, 2, 2))
+    size = rng.uniform(1, 30, (200, 2, 2))
+    boxes = np.concatenate([lo, lo + size], axis=-1)  # (200, 2, 4)
+    hand = np.array([[[0, 0, 10, 10], [20, 30, 25, 40]],     # disjoint in both x and y
+                     [[0, 0, 10, 10], [2, 3, 5, 6]],         # nested
+                     [[0, 0, 10, 10], [5, 5, 15, 15]]], float)
+    boxes = np.concatenate([hand, boxes])
+    got = giou_loss(torch.tensor(boxes[:, 0]), torch.tensor(boxes[:, 1])).numpy()
+    np.testing.assert_allclose(got, _giou_oracle(boxes[:, 0], boxes[:, 1]), rtol=1e-6, atol=1e-6)
+    # disjoint diagonally: IoU 0, union 100 + 50, hull 25 · 40 = 1000
+    assert got[0] == pytest.approx(1.0 + (1000 - 150) / 1000, abs=1e-6)
+
+
+def _decode_oracle(raw: np.ndarray, stride: int):
+    """Docstring formula: centre ((j+½+tx)·s, (i+½+ty)·s), size (s·e^tw, s·e^th), |tw|,|th| ≤ 6."""
+    n, _, h, w = raw.shape
+    boxes = np.zeros((n, h, w, 4))
+    for b in range(n):
+        for i in range(h):
+            for j in range(w):
+                _, tx, ty, tw, th = raw[b, :, i, j]
+                cx, cy = (j + 0.5 + tx) * stride, (i + 0.5 + ty) * stride
+                bw, bh = stride * np.exp(np.clip(tw, -6, 6)), stride * np.exp(np.clip(th, -6, 6))
+                boxes[b, i, j] = [cx - bw / 2, cy - bh / 2, cx + bw / 2, cy + bh / 2]
+    return raw[:, 0], boxes
+
+
+def test_decode_torch_matches_the_documented_cell_formula_on_a_non_square_map():
+    rng = np.random.default_rng(7)
+    raw = rng.normal(0.0, 1.0, (2, 5, 3, 5))
+    raw[0, 3, 0, 0], raw[0, 4, 1, 2], raw[1, 3, 2, 4], raw[1, 4, 0, 1] = 5.0, -5.5, 8.0, -9.0  # near and past the clamp
+    for stride in (8, 32):
+        logits, boxes = decode_torch(torch.tensor(raw), stride)
+        want_logits, want_boxes = _decode_oracle(raw, stride)
+        np.testing.assert_allclose(logits.numpy(), want_logits)
+        np.testing.assert_allclose(boxes.numpy(), want_boxes, rtol=1e-9, atol=1e-9)
+
+
+def test_heads_start_at_the_focal_loss_prior():
+    head = Head(8)
+    assert torch.sigmoid(head.pred.bias[0]).item() == pytest.approx(PRIOR, rel=1e-5)
+
+
+def test_detection_loss_is_the_focal_objectness_plus_twice_the_giou_per_positive_cell():
+    """Sigmoid focal loss, α = 0.25 on positives and 0.75 on negatives, γ = 2, summed over all
+    cells; GIoU loss summed over the positives; both divided by the number of positive cells."""
+    rng = np.random.default_rng(11)
+    height, width = 64, 96
+    boxes = [torch.tensor([[10.0, 12.0, 30.0, 24.0], [40.0, 30.0, 100.0, 60.0]]), torch.zeros((0, 4))]
+    targets = build_targets(boxes, height, width)
+    raw = [rng.normal(0.0, 1.5, (2, 5, height // s, width // s)) for s in STRIDES]
+    total, obj, box = detection_loss([torch.tensor(r) for r in raw], targets)
+    want_obj = want_box = 0.0
+    n_pos = 0
+    for r, (pos, target, stride) in zip(raw, targets):
+        logits, decoded = _decode_oracle(r, stride)
+        y = pos.numpy().astype(float)
+        p = 1.0 / (1.0 + np.exp(-logits))
+        ce = -(y * np.log(p) + (1 - y) * np.log(1 - p))
+        p_t = np.where(y == 1, p, 1 - p)
+        alpha_t = np.where(y == 1, 0.25, 0.75)
+        want_obj += np.sum(alpha_t * (1 - p_t) ** 2 * ce)
+        mask = pos.numpy()
+        if mask.any():
+            want_box += _giou_oracle(decoded[mask], target.numpy()[mask]).sum()
+        n_pos += int(mask.sum())
+    assert n_pos > 2
+    assert float(obj) == pytest.approx(want_obj / n_pos, rel=1e-6)
+    assert float(box) == pytest.approx(want_box / n_pos, rel=1e-6)
+    assert float(total) == pytest.approx(want_obj / n_pos + 2.0 * want_box / n_pos, rel=1e-6)
+
+
+# --- validation AP ---------------------------------------------------------------------------
+
+class _FixedMaps(torch.nn.Module):
+    """A stand-in network returning fixed head maps: every cell logit −10 except those given."""
+
+    def __init__(self, batch, height, width, hits):
+        super().__init__()
+        self.maps = [torch.full((batch, 5, height // s, width // s), -10.0) for s in STRIDES]
+        for level, b, i, j in hits:
+            self.maps[level][b, :, i, j] = torch.tensor([6.0, 0.0, 0.0, 0.0, 0.0])
+
+    def forward(self, images):
+        return tuple(m.clone() for m in self.maps)
+
+
+def test_validation_ap_decodes_each_head_with_its_stride_and_counts_every_labelled_box():
+    # one confident stride-8 box at cell (2, 4): centre (36, 20), 8 px → [32, 16, 40, 24]
+    net = _FixedMaps(1, 64, 64, [(0, 0, 2, 4)])
+    images = torch.zeros((1, 3, 64, 64))
+    found = [torch.tensor([[32.0, 16.0, 40.0, 24.0]])]
+    assert validate(net, [(images, found)]) == pytest.approx(1.0)
+    # a second UAV in the same image that nothing found: recall 1/2
+    two = [torch.tensor([[32.0, 16.0, 40.0, 24.0], [0.0, 40.0, 12.0, 52.0]])]
+    assert validate(net, [(images, two)]) == pytest.approx(0.5)
+
+
+# --- letterboxed training images -------------------------------------------------------------
+
+def _write_folder(root, count, size=(96, 64), rect=(16, 8, 40, 32)):
+    """A dataset folder of ``count`` lossless (PNG bytes) images: grey 200 with a dark 20 rectangle
+    ``rect`` = [x0, y0, x1, y1] px, labelled."""
+    w, h = size
+    (root / "images").mkdir(parents=True)
+    (root / "labels").mkdir()
+    img = np.full((h, w, 3), 200, np.uint8)
+    x0, y0, x1, y1 = rect
+    img[y0:y1, x0:x1] = 20
+    png = cv2.imencode(".png", img)[1].tobytes()
+    line = f"0 {(x0 + x1) / 2 / w:.6f} {(y0 + y1) / 2 / h:.6f} {(x1 - x0) / w:.6f} {(y1 - y0) / h:.6f}\n"
+    for i in range(count):
+        (root / "images" / f"{i:06d}.jpg").write_bytes(png)
+        (root / "labels" / f"{i:06d}.txt").write_text(line)
+    (root / "dataset.json").write_text(json.dumps({"width": w, "height": h, "images": count}))
+    return str(root)
+
+
+def _dark_extent(tensor):
+    dark = tensor.numpy().mean(axis=0) < 0.5
+    cols, rows = np.flatnonzero(dark.any(axis=0)), np.flatnonzero(dark.any(axis=1))
+    return np.array([cols[0], rows[0], cols[-1] + 1, rows[-1] + 1], float)
+
+
+def test_a_flipped_training_image_has_its_box_flipped_with_it_and_flips_vary_by_epoch_and_folder(tmp_path):
+    from uav_landing_vision.detection.train import LetterboxedImages
+
+    roots = [_write_folder(tmp_path / name, 1) for name in ("a", "b")]
+    data = LetterboxedImages([(roots[0], 0), (roots[1], 0)], (96, 64), seed=3, augment=True)
+    flips = {0: [], 1: []}
+    for epoch in range(16):
+        data.epoch = epoch
+        for k in (0, 1):
+            tensor, boxes = data[k]
+            assert tuple(tensor.shape) == (3, 64, 96) and boxes.shape == (1, 4)
+            np.testing.assert_allclose(boxes[0].numpy(), _dark_extent(tensor), atol=1e-4)  # box on the UAV's pixels
+            flips[k].append(bool(tensor[0, 10, 20] > 0.5))  # the rectangle spans x 16…40 unflipped
+    assert any(flips[0]) and not all(flips[0])  # a new draw each epoch
+    assert flips[0] != flips[1]  # and for each folder
+
+
+def test_validation_images_are_neither_flipped_nor_cropped(tmp_path):
+    from uav_landing_vision.detection.train import LetterboxedImages
+
+    root = _write_folder(tmp_path / "a", 1)
+    data = LetterboxedImages([(root, 0)], (96, 64), seed=0, augment=False, crop=(64, 32))
+    for epoch in range(10):
+        data.epoch = epoch
+        tensor, boxes = data[0]
+        assert tuple(tensor.shape) == (3, 64, 96)
+        np.testing.assert_allclose(boxes.numpy(), [[16, 8, 40, 32]], atol=1e-4)
+
+
+class _EdgeDraws:
+    """A generator stand-in: ``random()`` 0 (the crop holds the centre) and ``integers`` at the
+    low or high end of its range."""
+
+    def __init__(self, high: bool):
+        self.high = high
+
+    def random(self):
+        return 0.0
+
+    def integers(self, low, high):
+        return high - 1 if self.high else low
+
+
+def test_a_crop_holding_the_first_boxs_centre_has_it_at_least_a_pixel_inside():
+    """The crop's origin is drawn from [c − (size − 1), c − 1] (within the image): the first box's
+    centre c is never on the crop's edge."""
+    from uav_landing_vision.detection.train import random_crop
+
+    y, x = np.mgrid[0:384, 0:640]
+    img = np.stack([x % 256, y % 256, x // 256], axis=-1).astype(np.uint8)  # pixels encode their position
+    for high, boxes, origin in ((False, np.array([[490.0, 250.0, 510.0, 270.0]]), (500 - 319, 260 - 191)),
+                                (True, np.array([[290.0, 90.0, 310.0, 110.0]]), (299, 99))):
+        crop, out = random_crop(img, boxes, (320, 192), _EdgeDraws(high))
+        assert (int(crop[0, 0, 0]) + 256 * int(crop[0, 0, 2]), int(crop[0, 0, 1])) == origin
+        np.testing.assert_allclose(out, np.clip(boxes - [*origin, *origin], 0, [320, 192, 320, 192]))
+
+
+# --- the training run ------------------------------------------------------------------------
+
+def test_every_tenth_image_validates_max_images_limits_each_folder_and_the_first_step_learns(tmp_path, monkeypatch):
+    from uav_landing_vision.detection import train as training
+
+    root = _write_folder(tmp_path / "data", 12)
+    seen = {True: [], False: []}
+
+    class Recording(training.LetterboxedImages):
+        def __init__(self, items, *args, augment, **kwargs):
+            seen[augment].append(sorted(i for _, i in items))
+            super().__init__(items, *args, augment=augment, **kwargs)
+
+    monkeypatch.setattr(training, "LetterboxedImages", Recording)
+    settings = dict(data=(root,), epochs=1, batch=2, input_size=(96, 64), crop=(0, 0), width=8, threads=1)
+    training.train(training.TrainConfig(out=str(tmp_path / "all"), max_images=11, **settings), progress=False)
+    assert seen[False][-1] == [0, 10] and seen[True][-1] == list(range(1, 10))
+    # three images: image 0 validates, one batch of images 1 and 2 trains, one optimiser step
+    cfg = training.TrainConfig(out=str(tmp_path / "three"), max_images=3, **settings)
+    training.train(cfg, progress=False)
+    assert seen[False][-1] == [0] and seen[True][-1] == [1, 2]
+    torch.manual_seed(cfg.seed)
+    start = UavDetectorNet(cfg.width).state_dict()
+    trained = training.load_checkpoint(cfg)["net"]
+    moved = [k for k in start if k.endswith("weight") and not torch.equal(start[k], trained[k])]
+    assert len(moved) > 10  # the warm-up's first step has a learning rate above zero
+
+
+def test_a_checkpoint_from_before_a_setting_existed_counts_it_as_its_default(tmp_path):
+    from dataclasses import asdict
+
+    from uav_landing_vision.detection.train import TrainConfig, load_checkpoint
+
+    cfg = TrainConfig(out=str(tmp_path))
+    old = {k: v for k, v in asdict(cfg).items() if k not in ("init", "loader_workers")}
+    torch.save({"net": {}, "config": old, "epoch": 0}, tmp_path / "last.pt")
+    assert load_checkpoint(cfg)["epoch"] == 0
+    with pytest.raises(ValueError, match="other settings"):
+        load_checkpoint(TrainConfig(out=str(tmp_path), loader_workers=1))
+
+
+def test_input_and_crop_sizes_must_be_multiples_of_the_largest_stride():
+    from uav_landing_vision.detection.train import TrainConfig
+
+    for kwargs in ({"input_size": (328, 192)}, {"crop": (320, 200)}):
+        with pytest.raises(ValueError, match="multiples of 32"):
+            TrainConfig(**kwargs)
+    TrainConfig(input_size=(4096, 192))  # the export's largest side is allowed
+
+
+@pytest.fixture(scope="module")
+def small_export(tmp_path_factory):
+    """A width-8 network with two blocks in its first stage, exported; its BatchNorm shifts made
+    non-zero so that every convolution keeps a bias input."""
+    from uav_landing_vision.detection.export import export_onnx
+
+    torch.manual_seed(0)
+    net = UavDetectorNet(width=8, blocks=(2, 1, 1))
+    with torch.no_grad():
+        for m in net.modules():
+            if isinstance(m, torch.nn.BatchNorm2d):
+                m.bias.uniform_(0.1, 0.2)
+    return export_onnx(net.eval(), tmp_path_factory.mktemp("small") / "det.onnx", (96, 64))
+
+
+def test_weights_from_an_onnx_model_with_convolutions_the_network_lacks_are_refused(small_export):
+    from uav_landing_vision.detection.train import weights_from_onnx
+
+    with pytest.raises(ValueError, match="does not have"):
+        weights_from_onnx(small_export, UavDetectorNet(width=8, blocks=(1, 1, 1)))
+
+
+def test_the_exported_outputs_are_named_by_their_stride(small_export):
+    """``p8``, ``p16``, ``p32``: the output named p<s> is the head map of stride s."""
+    import onnxruntime as ort
+
+    session = ort.InferenceSession(str(small_export), providers=["CPUExecutionProvider"])
+    outputs = session.run(None, {"images": np.zeros((1, 3, 64, 96), np.float32)})
+    names = [o.name for o in session.get_outputs()]
+    assert names == ["p8", "p16", "p32"]
+    for name, out in zip(names, outputs):
+        s = int(name[1:])
+        assert out.shape == (1, 5, 64 // s, 96 // s)
+
+
+def test_the_verifier_export_records_the_crop_geometry_it_was_given(tmp_path):
+    import onnx
+
+    from uav_landing_vision.detection.export import export_verifier_onnx
+    from uav_landing_vision.detection.network import BoxVerifierNet
+    from uav_landing_vision.detection.verifier import CropGeometry
+
+    geometry = CropGeometry(32, 2.0, 16)
+    torch.manual_seed(0)
+    path = export_verifier_onnx(BoxVerifierNet(4).eval(), tmp_path / "verifier.onnx", geometry)
+    meta = {p.key: p.value for p in onnx.load(str(path)).metadata_props}
+    assert json.loads(meta["crop"]) == geometry._asdict() != CropGeometry()._asdict()

@@ -1,10 +1,15 @@
 """The box verifier: crop geometry against hand-made cases, mining and training on tiny datasets,
 the export against torch, and the verifier's product in the detector's scores."""
 
+import json
+from types import SimpleNamespace
+
+import cv2
 import numpy as np
 import pytest
 import torch
 
+from uav_landing_vision.detection import verifier_train as vt
 from uav_landing_vision.detection.detector import Detector, DetectorConfig
 from uav_landing_vision.detection.export import export_onnx, export_verifier_onnx
 from uav_landing_vision.detection.network import BoxVerifierNet, UavDetectorNet
@@ -195,3 +200,206 @@ def test_fewer_training_crops_than_a_batch_is_a_clear_error(datasets, tmp_path):
                               width=4, threads=1, workers=1)
     with pytest.raises(ValueError, match=r"only \d+ training crops, fewer than one batch of 100000"):
         train_verifier(cfg, progress=False)
+
+
+# --- training the verifier: mining labels, jittered crops, augmentation, validation metrics ---------
+
+A = [50.0, 40.0, 90.0, 60.0]  # 40 × 20 px, area 800
+
+
+def _folder(root, labels, size=(200, 100)):
+    (root / "images").mkdir(parents=True)
+    (root / "labels").mkdir()
+    w, h = size
+    png = cv2.imencode(".png", np.full((h, w, 3), 90, np.uint8))[1].tobytes()
+    (root / "images" / "000000.jpg").write_bytes(png)
+    lines = [f"0 {(b[0] + b[2]) / 2 / w:.6f} {(b[1] + b[3]) / 2 / h:.6f} {(b[2] - b[0]) / w:.6f} "
+             f"{(b[3] - b[1]) / h:.6f}" for b in labels]
+    (root / "labels" / "000000.txt").write_text("\n".join(lines) + "\n")
+    (root / "dataset.json").write_text(json.dumps({"width": w, "height": h, "images": 1}))
+    return str(root)
+
+
+def _mine(monkeypatch, folders, found, **cfg):
+    """Run the mining of image 0 of each folder with a detector that finds ``found``; returns
+    per folder (boxes given to the cropper, labels, source)."""
+    seen = []
+    monkeypatch.setattr(vt, "box_crops", lambda image, boxes, geometry: seen.append(np.array(boxes)) or
+                        np.zeros((len(boxes), 4, 4, 3), np.uint8))
+    detector = SimpleNamespace(detect=lambda image: SimpleNamespace(boxes=np.array(found, float).reshape(-1, 4)))
+    config = vt.VerifierTrainConfig(data=tuple(folders), detector="none.onnx", **cfg)
+    monkeypatch.setattr(vt, "_miner", (config, detector))
+    out = vt._mine_images([(f, 0) for f in range(len(folders))])
+    return [(boxes, labels, source) for boxes, (_, labels, source) in zip(seen, out)]
+
+
+def test_mining_labels_positives_from_the_positive_iou_and_negatives_up_to_the_negative_iou(tmp_path, monkeypatch):
+    """Nested boxes inside the 800 px² label: IoU = their area / 800, exact at 0.4 and 0.05."""
+    root = _folder(tmp_path / "d", [A, [150.0, 70.0, 153.0, 80.0]])  # the second label is 3 px wide
+    assert vt.read_labels(tmp_path / "d" / "labels" / "000000.txt", 200, 100)[0].tolist() == A  # exact
+    found = [A,                                  # IoU 1: positive
+             [50.0, 40.0, 66.0, 60.0],           # IoU 0.4 = positive_iou: positive
+             [50.0, 40.0, 52.0, 60.0],           # IoU 0.05 = negative_iou: negative
+             [50.0, 40.0, 58.0, 60.0],           # IoU 0.2: between, left out
+             [0.0, 0.0, 10.0, 10.0]]             # IoU 0: negative
+    (boxes, labels, source), = _mine(monkeypatch, [root], found)
+    assert labels.tolist() == [1, 1, 0, 0, 1] and source.tolist() == [0, 0, 0, 0, 1]
+    np.testing.assert_allclose(boxes[:4], np.array(found)[[0, 1, 2, 4]])
+    # one jittered copy of the 40 px label (the 3 px one adds none), around it
+    jittered = boxes[4]
+    assert jittered[2] > jittered[0] and jittered[3] > jittered[1]
+    assert box_iou_one(jittered, A) > 0.3
+
+
+def box_iou_one(a, b):
+    from uav_landing_vision.detection.detector import box_iou
+
+    return float(box_iou(np.array([a]), np.array([b]))[0, 0])
+
+
+def test_jittered_label_boxes_shift_by_a_tenth_of_their_size_and_scale_by_e_to_a_normal_015(tmp_path, monkeypatch):
+    rng = np.random.default_rng(5)
+    x0 = rng.uniform(0, 300, 400)
+    y0 = rng.uniform(0, 200, 400)
+    w, h = rng.uniform(8, 60, 400), rng.uniform(8, 40, 400)
+    labels = np.stack([x0, y0, x0 + w, y0 + h], 1)
+    folders = [_folder(tmp_path / name, labels, size=(400, 300)) for name in ("a", "b")]
+    mined = _mine(monkeypatch, folders, [])
+    truth = vt.read_labels(tmp_path / "a" / "labels" / "000000.txt", 400, 300)
+    for boxes, lab, source in mined:
+        assert len(boxes) == 400 and (lab == 1).all() and (source == 1).all()
+        size = truth[:, 2:] - truth[:, :2]
+        shift = ((boxes[:, :2] + boxes[:, 2:]) / 2 - (truth[:, :2] + truth[:, 2:]) / 2) / size
+        scale = np.log((boxes[:, 2:] - boxes[:, :2]) / size)
+        assert np.abs(shift.mean(axis=0)).max() < 0.02 and np.all(np.abs(shift.std(axis=0) - 0.1) < 0.015)
+        assert np.abs(scale.mean(axis=0)).max() < 0.03 and np.all(np.abs(scale.std(axis=0) - 0.15) < 0.02)
+    assert not np.allclose(mined[0][0], mined[1][0])  # each folder's image 0 draws its own jitter
+
+
+def test_augment_flips_left_right_and_applies_a_gain_and_channel_offsets_to_zero_one_pixels():
+    rng = np.random.default_rng(0)
+    crops = rng.integers(0, 256, (64, 6, 6, 3), dtype=np.uint8)
+    out = vt.augment(crops, np.random.default_rng(1)).numpy()
+    assert out.shape == (64, 3, 6, 6)
+    x = crops.astype(float) / 255.0
+    flips = 0
+    for k in range(64):
+        y = out[k].transpose(1, 2, 0)  # back to rows, columns, channels
+        fits = []
+        for candidate in (x[k], x[k][:, ::-1]):
+            # y = g · x + o_c: one gain for all channels, one offset per channel
+            g = np.polyfit(candidate[..., 0].ravel(), y[..., 0].ravel(), 1)[0]
+            resid = y - g * candidate
+            fits.append((np.ptp(resid.reshape(-1, 3), axis=0).max(), g, resid.reshape(-1, 3).mean(axis=0)))
+        best = min(range(2), key=lambda i: fits[i][0])
+        assert fits[best][0] < 1e-5 and 0.7 <= fits[best][1] <= 1.3
+        flips += best
+    assert 16 < flips < 48
+
+
+def test_validation_metrics_hand_made():
+    prob = np.array([0.9, 0.8, 0.3, 0.4, 0.1])
+    labels = np.array([1, 0, 0, 1, 0])
+    m = vt.validation_metrics(prob, labels)
+    # by score: T F T F F → precision 1 at recall ½, 2/3 at recall 1
+    assert m["ap"] == pytest.approx(0.5 * 1 + 0.5 * 2 / 3)
+    assert m["positives_kept"] == pytest.approx(0.5) and m["negatives_rejected"] == pytest.approx(2 / 3)
+
+
+def _premined(n_train_pos, n_train_neg, n_val=4, side=8):
+    """Mined crops stood in for mine_crops: each crop a flat grey whose level encodes its index."""
+    n = n_train_pos + n_train_neg + n_val
+    crops = np.repeat(np.arange(n, dtype=np.uint8)[:, None, None, None] * 3, side * side * 3).reshape(n, side, side, 3)
+    labels = np.array([1] * n_train_pos + [0] * n_train_neg + [1, 0] * (n_val // 2), np.int8)
+    validation = np.array([False] * (n_train_pos + n_train_neg) + [True] * n_val)
+    return {"crops": crops, "labels": labels, "source": np.zeros(n, np.int8), "validation": validation}
+
+
+def _stub_mining(monkeypatch, mined):
+    """mine_crops stood in: it makes the run's folder, as mining does, and gives ``mined``."""
+    from pathlib import Path
+
+    def mine(cfg, progress=True):
+        Path(cfg.out).mkdir(parents=True, exist_ok=True)
+        return mined
+
+    monkeypatch.setattr(vt, "mine_crops", mine)
+
+
+def test_the_verifier_loss_weights_positives_by_the_negatives_per_positive(tmp_path, monkeypatch):
+    import torch
+
+    mined = _premined(4, 12)  # a quarter of the training crops are UAVs: positives weigh 3
+    _stub_mining(monkeypatch, mined)
+    weights = []
+    real = torch.nn.functional.binary_cross_entropy_with_logits
+
+    def recording(logits, target, pos_weight=None):
+        weights.append(float(pos_weight))
+        return real(logits, target, pos_weight=pos_weight)
+
+    monkeypatch.setattr(vt, "F", type("F", (), {"binary_cross_entropy_with_logits": staticmethod(recording)}))
+    cfg = vt.VerifierTrainConfig(data=("d",), out=str(tmp_path / "run"), epochs=1, batch=8, width=4)
+    vt.train_verifier(cfg, progress=False)
+    assert weights and all(w == pytest.approx(3.0) for w in weights)
+
+
+def test_verifier_training_needs_both_classes_among_the_training_crops(tmp_path, monkeypatch):
+    _stub_mining(monkeypatch, _premined(16, 0))
+    cfg = vt.VerifierTrainConfig(data=("d",), out=str(tmp_path / "run"), epochs=1, batch=8, width=4)
+    with pytest.raises(ValueError, match="both UAV and non-UAV"):
+        vt.train_verifier(cfg, progress=False)
+
+
+def test_each_verifier_epoch_draws_its_own_order_of_the_crops(tmp_path, monkeypatch):
+    mined = _premined(8, 8)
+    _stub_mining(monkeypatch, mined)
+    batches = []
+    augment = vt.augment
+    monkeypatch.setattr(vt, "augment", lambda crops, rng: batches.append(crops[:, 0, 0, 0] // 3) or augment(crops, rng))
+    cfg = vt.VerifierTrainConfig(data=("d",), out=str(tmp_path / "run"), epochs=3, batch=4, width=4)
+    vt.train_verifier(cfg, progress=False)
+    epochs = [np.concatenate(batches[k * 4 : (k + 1) * 4]) for k in range(3)]
+    assert all(sorted(e.tolist()) == list(range(16)) for e in epochs)  # every training crop once an epoch
+    assert not np.array_equal(epochs[0], epochs[1]) and not np.array_equal(epochs[1], epochs[2])
+
+
+def test_predict_gives_probabilities_of_the_verifier_logits():
+    import torch
+
+    from uav_landing_vision.detection.network import BoxVerifierNet
+
+    net = BoxVerifierNet(4)
+    with torch.no_grad():
+        net.logit.weight.zero_()
+        net.logit.bias.fill_(-2.0)
+    prob = vt.predict(net, np.zeros((5, 16, 16, 3), np.uint8), batch=2)
+    np.testing.assert_allclose(prob, np.full(5, 1 / (1 + np.exp(2.0))), rtol=1e-6)
+
+
+def test_a_resumed_verifier_run_continues_after_its_last_epoch_and_ends_as_the_uninterrupted_one(tmp_path, monkeypatch):
+    import torch
+
+    _stub_mining(monkeypatch, _premined(8, 8))
+    settings = dict(data=("d",), epochs=3, batch=4, width=4)
+    whole = vt.VerifierTrainConfig(out=str(tmp_path / "whole"), **settings)
+    split = vt.VerifierTrainConfig(out=str(tmp_path / "split"), **settings)
+    vt.train_verifier(whole, progress=False)
+    metrics, calls = vt.validation_metrics, []
+
+    def interrupted(*args):  # Ctrl-C in epoch 2's validation: last.pt holds epoch 1
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return metrics(*args)
+
+    monkeypatch.setattr(vt, "validation_metrics", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        vt.train_verifier(split, progress=False)
+    monkeypatch.setattr(vt, "validation_metrics", metrics)
+    log = vt.train_verifier(split, resume=True, progress=False)
+    assert [e["epoch"] for e in log["epochs"]] == [1, 2, 3]
+    from uav_landing_vision.detection.train import load_checkpoint
+
+    a, b = load_checkpoint(whole), load_checkpoint(split)
+    assert all(torch.equal(a["net"][k], b["net"][k]) for k in a["net"])
