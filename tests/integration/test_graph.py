@@ -1,5 +1,7 @@
-"""``uav-landing graph``: bag_player + undistort as separate processes over DDS, and their shutdown."""
+"""``uav-landing graph``: bag_player + undistort as separate processes over DDS, and their shutdown; its
+plan (node commands, remaps, frame transport, ready topics) and the launcher's drain, signals and exit."""
 
+import argparse
 import os
 import signal
 import subprocess
@@ -11,6 +13,7 @@ import cv2
 import numpy as np
 import pytest
 import rclpy
+import yaml
 import rclpy.node
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from rclpy.serialization import serialize_message
@@ -22,9 +25,12 @@ from test_node_common import SMALL_CAMERA, frame_entries, rgb_frame, ros, write_
 from uav_landing_msgs.msg import TrackerStatus
 from uav_landing_vision.gcs.mavlink import open_link
 from uav_landing_vision import graph as graph_module
-from uav_landing_vision.graph import GRAPH_NODES, node_command
+from uav_landing_vision.graph import (COMPRESSED_FRAMES, GRAPH_NODES, PIPELINE_TOPICS, PLAYER, TRACKER_ACK, Graph,
+                                      _plan, domain_id, frame_overrides, node_command, node_environment, parse_remaps,
+                                      replay_overrides, replay_ready_topics)
 from uav_landing_vision.nodes.image import image_to_numpy
 from uav_landing_vision.nodes.qos import RELIABLE_QOS, IMAGE_QOS
+from uav_landing_vision.resources import config_path
 from uav_landing_vision.stamps import stamp_ns
 
 REPO = Path(__file__).parents[2]
@@ -367,3 +373,245 @@ def test_a_bag_path_reaches_the_player_whole(path):
         node.destroy_node()
     finally:
         context.try_shutdown()
+
+
+# --- the plan (what each node is started with, which start, the replay's links) and the launcher's end
+
+CONFIG = config_path("tracker.yaml").parent
+TYPES = {"/camera/image_raw": "sensor_msgs/msg/Image", "/camera/camera_info": "sensor_msgs/msg/CameraInfo",
+         "/uav/ground_truth": "geometry_msgs/msg/PoseStamped", COMPRESSED_FRAMES: "sensor_msgs/msg/CompressedImage",
+         "/deck_cam/image_raw/compressed": "sensor_msgs/msg/CompressedImage",
+         "/deck_cam/camera_info": "sensor_msgs/msg/CameraInfo"}
+
+
+def bag_of(path: Path, topics) -> Path:
+    """A bag recording ``topics`` (one message each; only the names matter to the plan)."""
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    with Writer(path, version=9) as writer:
+        for topic in topics:
+            writer.write(writer.add_connection(topic, TYPES[topic], typestore=typestore), 1, b"\x00\x01\x00\x00")
+    return path
+
+
+def plan(nodes=None, bag=None, params=(), drain=2.0, stop_timeout=10.0, config=CONFIG, remaps=None):
+    args = argparse.Namespace(nodes=nodes, bag=bag, param=list(params), drain=drain, stop_timeout=stop_timeout, config=config)
+    return _plan(args, remaps)
+
+
+# --- command lines, environment, requests ---------------------------------------------------------
+
+
+def test_a_node_command_passes_each_override_as_a_ros_parameter_and_each_remap_from_source_to_target():
+    cmd = node_command("undistort", Path("/cfg"), [("interpolation", "linear"), ("use_sim_time", "true")],
+                       {"/deck_cam/image_raw": "/camera/image_raw"})
+    assert cmd[:3] == [sys.executable, "-m", "uav_landing_vision.nodes.undistort"]
+    assert cmd[3:] == ["--ros-args", "--params-file", "/cfg/undistort.yaml", "-p", "interpolation:=linear",
+                       "-p", "use_sim_time:=true", "-r", "/deck_cam/image_raw:=/camera/image_raw"]
+
+
+def test_remap_rules_need_absolute_names_on_both_sides():
+    assert parse_remaps(["/a:=/b", "/c:=/d"]) == {"/a": "/b", "/c": "/d"}
+    for rule in ["/deck_cam/image_raw:=camera/image_raw", "deck_cam/image_raw:=/camera/image_raw"]:
+        with pytest.raises(ValueError, match="absolute topic names"):
+            parse_remaps([rule])
+
+
+@pytest.mark.parametrize("text, value", [("0", 0), ("232", 232), ("95", 95)])
+def test_every_domain_id_rcl_accepts_is_taken(text, value):
+    assert domain_id(text) == value
+
+
+def test_the_node_environment_sets_domain_zero_and_puts_this_package_first_on_the_path(monkeypatch):
+    monkeypatch.setenv("ROS_DOMAIN_ID", "42")
+    monkeypatch.setenv("PYTHONPATH", "/elsewhere")
+    env = node_environment(0)
+    assert env["ROS_DOMAIN_ID"] == "0"  # a domain asked for, even the default one, is set
+    first = env["PYTHONPATH"].split(os.pathsep)[0]
+    assert (Path(first) / "uav_landing_vision" / "graph.py").resolve() == Path(graph_module.__file__).resolve()
+    assert env["PYTHONPATH"].split(os.pathsep)[1:] == ["/elsewhere"]
+    assert node_environment()["ROS_DOMAIN_ID"] == "42" and node_environment()["PYTHONUNBUFFERED"] == "1"
+
+
+def test_without_a_bag_the_player_is_not_started():
+    names, overrides = plan()
+    assert names == [n for n in GRAPH_NODES if n != PLAYER] and set(overrides) == set(names)
+    assert all(items == [] for items in overrides.values())  # the live graph: wall clock, the files' parameters
+
+
+def test_a_drain_of_zero_is_taken_and_a_stop_timeout_of_zero_refused():
+    assert plan(nodes="undistort", drain=0.0)[0] == ["undistort"]
+    with pytest.raises(ValueError, match="--stop-timeout > 0"):
+        plan(nodes="undistort", stop_timeout=0.0)
+
+
+def test_a_parameter_override_without_a_key_is_refused():
+    with pytest.raises(ValueError, match="expected NODE:KEY=VALUE"):
+        plan(nodes="undistort", params=["undistort:=linear"])
+    with pytest.raises(ValueError, match="node 'tracker' is not in the graph"):
+        plan(nodes="undistort", params=["tracker:particles=10"])
+
+
+def test_a_missing_parameter_file_is_refused_before_anything_starts(tmp_path):
+    (tmp_path / "undistort.yaml").write_text("undistort:\n  ros__parameters: {}\n")
+    with pytest.raises(ValueError, match=r"missing parameter file\(s\): .*detector.yaml"):
+        plan(nodes="undistort,detector", config=tmp_path)
+    assert plan(nodes="undistort", config=tmp_path)[0] == ["undistort"]
+
+
+# --- replay overrides -------------------------------------------------------------------------------
+
+
+def test_a_replay_runs_every_node_but_the_player_on_the_bags_clock_and_paces_on_the_tracker_only_with_one():
+    with_tracker = replay_overrides(["undistort", "tracker", PLAYER], "/bags/landing")
+    assert with_tracker["undistort"] == [("use_sim_time", "true")] == with_tracker["tracker"]
+    player = dict(with_tracker[PLAYER])
+    assert player["clock"] == "true" and "use_sim_time" not in player
+    assert yaml.safe_load(player["bag"]) == "/bags/landing"
+    assert all(player[k] == v for k, v in TRACKER_ACK)
+    without = dict(replay_overrides(["undistort", PLAYER], "/bags/landing")[PLAYER])
+    assert "ack_topic" not in without and "ack_type" not in without and "ready_topics" not in without
+
+
+def test_a_compressed_recording_of_other_names_remapped_onto_the_graphs_is_decoded_by_undistort(tmp_path):
+    bag = bag_of(tmp_path / "deck", ["/deck_cam/image_raw/compressed", "/deck_cam/camera_info"])
+    remaps = {"/deck_cam/image_raw/compressed": COMPRESSED_FRAMES, "/deck_cam/camera_info": "/camera/camera_info"}
+    assert frame_overrides(bag, remaps) == {"undistort": [("image_transport", "compressed")],
+                                            PLAYER: [("pace_topic", COMPRESSED_FRAMES)]}
+    assert frame_overrides(bag) == {}  # not remapped: no frames the graph takes
+    assert replay_ready_topics(bag, remaps)[0] == COMPRESSED_FRAMES
+    names, overrides = plan(bag=bag, remaps=remaps)
+    assert dict(overrides["undistort"])["image_transport"] == "compressed"
+    assert dict(overrides[PLAYER])["pace_topic"] == COMPRESSED_FRAMES
+    assert yaml.safe_load(dict(overrides[PLAYER])["ready_topics"]) == [
+        COMPRESSED_FRAMES, *(t for t in PIPELINE_TOPICS if t not in ("/camera/image_raw", "/uav/ground_truth"))]
+
+
+def test_a_compressed_replay_of_part_of_the_graph_waits_for_the_frames_and_camera_info_links(tmp_path):
+    bag = bag_of(tmp_path / "packed", [COMPRESSED_FRAMES, "/camera/camera_info"])
+    player = dict(plan(nodes="undistort,bag_player", bag=bag)[1][PLAYER])
+    assert yaml.safe_load(player["ready_topics"]) == [COMPRESSED_FRAMES, "/camera/camera_info"]
+    assert player["pace_topic"] == COMPRESSED_FRAMES
+    # The user's own ready topics are the only ones the player is given.
+    told = plan(nodes="undistort,bag_player", bag=bag, params=["bag_player:ready_topics=[/camera/camera_info]"])[1][PLAYER]
+    assert [v for k, v in told if k == "ready_topics"] == ["[/camera/camera_info]"]
+
+
+def test_a_compressed_replay_without_undistort_still_starts_the_others(tmp_path):
+    """The frame overrides of a node not started are not given (there is no such node to give them to)."""
+    bag = bag_of(tmp_path / "packed", [COMPRESSED_FRAMES, "/camera/camera_info"])
+    names, overrides = plan(nodes="tracker,bag_player", bag=bag)
+    assert names == ["tracker", PLAYER] and set(overrides) == {"tracker", PLAYER}
+    assert dict(overrides[PLAYER])["pace_topic"] == COMPRESSED_FRAMES
+
+
+# --- the launcher ------------------------------------------------------------------------------------
+
+
+def _running(flag: Path) -> str:
+    """A node that runs until it is stopped, ``flag`` made once it runs (its SIGINT handling set up)."""
+    return f"import pathlib, time\npathlib.Path({str(flag)!r}).touch()\ntime.sleep(60)"
+
+
+def _once_running(flag: Path, then: str) -> str:
+    """A node that does ``then`` once the :func:`_running` node of ``flag`` runs."""
+    return f"import os, time\nwhile not os.path.exists({str(flag)!r}):\n    time.sleep(0.02)\n{then}"
+
+
+class RecordingEvent:
+    """A stop-request event that records the seconds of every wait on it (and waits none)."""
+
+    def __init__(self):
+        self.waits, self._set = [], False
+
+    def is_set(self):
+        return self._set
+
+    def set(self):
+        self._set = True
+
+    def wait(self, timeout=None):
+        self.waits.append(timeout)
+        return self._set
+
+
+def test_the_graph_waits_the_drain_time_after_the_bag_is_played(monkeypatch, capsys, tmp_path):
+    flag = tmp_path / "running"
+    _fake_nodes(monkeypatch, {"undistort": _running(flag), PLAYER: _once_running(flag, "pass")})
+    graph = Graph(["undistort", PLAYER], tmp_path, {"undistort": [], PLAYER: []}, dict(os.environ), stop_timeout=5.0,
+                  drain_s=3.25)
+    graph._stop_requested = RecordingEvent()
+    assert graph.run() == 0
+    assert 3.25 in graph._stop_requested.waits
+    assert "bag played; stopping the graph in 3.25 s" in capsys.readouterr().out
+
+
+def test_a_player_that_fails_fails_the_graph_without_a_drain(monkeypatch, capsys, tmp_path):
+    flag = tmp_path / "running"
+    _fake_nodes(monkeypatch, {"undistort": _running(flag), PLAYER: _once_running(flag, "raise SystemExit(1)")})
+    graph = Graph(["undistort", PLAYER], tmp_path, {"undistort": [], PLAYER: []}, dict(os.environ), stop_timeout=5.0,
+                  drain_s=3.25)
+    graph._stop_requested = RecordingEvent()
+    assert graph.run() == 1
+    output = capsys.readouterr().out
+    assert "bag_player exited with code 1; stopping the graph" in output and "bag played" not in output
+    assert 3.25 not in graph._stop_requested.waits
+
+
+def test_the_graph_command_gives_the_launcher_its_drain_and_remaps(monkeypatch):
+    from uav_landing_vision.cli import main
+
+    made = {}
+
+    class Recorder:
+        def __init__(self, names, config_dir, overrides, env, stop_timeout, drain_s=2.0, remaps=None):
+            made.update(names=names, stop_timeout=stop_timeout, drain_s=drain_s, remaps=remaps, env=env)
+
+        def run(self):
+            return 0
+
+    monkeypatch.setattr(graph_module, "Graph", Recorder)
+    assert main(["graph", "--nodes", "undistort", "--drain", "0.75", "--stop-timeout", "4", "--domain-id", "95",
+                 "--remap", "/deck_cam/image_raw:=/camera/image_raw"]) == 0
+    assert made["names"] == ["undistort"] and made["drain_s"] == 0.75 and made["stop_timeout"] == 4.0
+    assert made["remaps"] == {"/deck_cam/image_raw": "/camera/image_raw"}
+    assert made["env"]["ROS_DOMAIN_ID"] == "95"
+
+
+def test_a_node_ending_with_the_shells_ctrl_c_status_ended_cleanly(monkeypatch, capsys, tmp_path):
+    """128 + SIGINT: how a node run through a shell reports its Ctrl-C."""
+    flag = tmp_path / "running"
+    _fake_nodes(monkeypatch, {"undistort": _running(flag), "evaluator": _once_running(flag, "raise SystemExit(130)")})
+    graph = Graph(["undistort", "evaluator"], tmp_path, {"undistort": [], "evaluator": []}, dict(os.environ), stop_timeout=5.0)
+    assert graph.run() == 0
+    assert "all nodes stopped cleanly" in capsys.readouterr().out
+
+
+def test_a_sigterm_to_the_launcher_stops_the_graph_says_which_signal_and_restores_the_handlers(monkeypatch, capsys, tmp_path):
+    before = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+    # The node asks its launcher to stop, then waits for its own SIGINT.
+    script = "import os, signal, time; os.kill(os.getppid(), signal.SIGTERM); time.sleep(60)"
+    _fake_nodes(monkeypatch, {"undistort": script})
+    graph = Graph(["undistort"], tmp_path, {"undistort": []}, dict(os.environ), stop_timeout=5.0)
+    assert graph.run() == 0
+    assert graph.stopped_by_signal == signal.SIGTERM
+    assert "stop requested; stopping the graph" in capsys.readouterr().out
+    assert graph.procs["undistort"].returncode == -signal.SIGINT
+    assert {s: signal.getsignal(s) for s in before} == before
+
+
+def test_a_bag_with_raw_frames_is_played_raw_even_if_it_also_has_compressed_ones(tmp_path):
+    bag = bag_of(tmp_path / "both", ["/camera/image_raw", COMPRESSED_FRAMES, "/camera/camera_info"])
+    assert frame_overrides(bag) == {}
+    assert COMPRESSED_FRAMES not in replay_ready_topics(bag) and "/camera/image_raw" in replay_ready_topics(bag)
+
+
+def test_the_graph_remapped_onto_a_recordings_compressed_frames_decodes_them(tmp_path):
+    """The other direction of remapping: the graph's names onto the recording's (-r /camera/...:=/deck_cam/...)."""
+    bag = bag_of(tmp_path / "deck", ["/deck_cam/image_raw/compressed", "/deck_cam/camera_info"])
+    remaps = {COMPRESSED_FRAMES: "/deck_cam/image_raw/compressed", "/camera/camera_info": "/deck_cam/camera_info"}
+    assert frame_overrides(bag, remaps) == {"undistort": [("image_transport", "compressed")],
+                                            PLAYER: [("pace_topic", COMPRESSED_FRAMES)]}
+    assert replay_ready_topics(bag, remaps)[:2] == (COMPRESSED_FRAMES, "/camera/camera_info")
