@@ -1,21 +1,24 @@
 """The ship-PC launch file (not executable here: no launch/launch_ros wheels) and what it relies on:
-console scripts, parameter files installed to share/, and the same node list as ``uav-landing graph``."""
+console scripts, parameter files installed to share/, the same node list as ``uav-landing graph``, and the
+shutdown a drain time after the bag."""
 
+import argparse
 import ast
 import importlib.util
 import py_compile
 import subprocess
 import sys
 import types
-from glob import glob
 from pathlib import Path
 
 import yaml
 
-from uav_landing_vision.graph import GRAPH_NODES, PIPELINE_TOPICS, PLAYER, TRACKER_ACK, _plan
+from uav_landing_vision import graph as graph_module
+from uav_landing_vision.graph import COMPRESSED_FRAMES, GRAPH_NODES, PIPELINE_TOPICS, PLAYER, TRACKER_ACK, _plan
 
 PACKAGE_DIR = Path(__file__).parents[2] / "src" / "uav_landing_vision"
 LAUNCH = PACKAGE_DIR / "launch" / "landing_vision.launch.py"
+CONFIG = str(Path(__file__).parents[2] / "config")
 
 
 def _assignments(path: Path) -> dict:
@@ -51,26 +54,31 @@ def test_launch_and_graph_start_the_same_nodes_each_with_script_module_and_param
         assert (PACKAGE_DIR / "uav_landing_vision" / "nodes" / f"{name}.py").is_file()
 
 
-def _launch_nodes(monkeypatch, bag: str, config_dir: str, remap: str = "", remappings: bool = False) -> dict:
-    """The parameters (or the remappings) of each node the launch file starts, with launch /
-    launch_ros stood in for by recorders (they are not installable here)."""
+class _Recorded:
+    def __init__(self, *args, **kwargs):
+        self.args, self.kwargs = args, kwargs
 
-    class Recorded:
-        def __init__(self, *args, **kwargs):
-            self.args, self.kwargs = args, kwargs
 
-    class LaunchConfiguration(Recorded):
+def _launch_actions(monkeypatch, bag: str, config_dir: str, remap: str = "") -> list:
+    """The actions the launch file returns, with launch / launch_ros stood in for by recorders
+    (they are not installable here), one recorder class per launch class."""
+
+    class LaunchConfiguration(_Recorded):
         def perform(self, context):
             return context[self.args[0]]
 
+    def recorder(name):
+        return type(name, (_Recorded,), {})
+
     stubs = {
-        "launch": {"LaunchDescription": Recorded},
-        "launch.actions": {n: Recorded for n in ("DeclareLaunchArgument", "EmitEvent", "OpaqueFunction", "RegisterEventHandler", "TimerAction")},
-        "launch.event_handlers": {"OnProcessExit": Recorded},
-        "launch.events": {"Shutdown": Recorded},
+        "launch": {"LaunchDescription": _Recorded},
+        "launch.actions": {n: recorder(n) for n in
+                           ("DeclareLaunchArgument", "EmitEvent", "OpaqueFunction", "RegisterEventHandler", "TimerAction")},
+        "launch.event_handlers": {"OnProcessExit": recorder("OnProcessExit")},
+        "launch.events": {"Shutdown": recorder("Shutdown")},
         "launch.substitutions": {"LaunchConfiguration": LaunchConfiguration},
         "launch_ros": {},
-        "launch_ros.actions": {"Node": Recorded},
+        "launch_ros.actions": {"Node": recorder("Node")},
         "ament_index_python": {},
         "ament_index_python.packages": {"get_package_share_directory": lambda package: config_dir},
     }
@@ -79,24 +87,33 @@ def _launch_nodes(monkeypatch, bag: str, config_dir: str, remap: str = "", remap
     spec = importlib.util.spec_from_file_location("landing_vision_launch", LAUNCH)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
-    actions = module._nodes({"bag": bag, "config_dir": config_dir, "remap": remap})
-    nodes = [a.kwargs for a in actions if "executable" in a.kwargs]
+    return module._nodes({"bag": bag, "config_dir": config_dir, "remap": remap})
+
+
+def _launch_nodes(monkeypatch, bag: str, config_dir: str, remap: str = "", remappings: bool = False) -> dict:
+    """The parameters (or the remappings) of each node the launch file starts."""
+    nodes = [a.kwargs for a in _launch_actions(monkeypatch, bag, config_dir, remap) if type(a).__name__ == "Node"]
     if remappings:
         return {n["name"]: n["remappings"] for n in nodes}
     return {n["name"]: {k: v for p in n["parameters"] if isinstance(p, dict) for k, v in p.items()} for n in nodes}
 
 
-def test_launch_replay_runs_on_the_bags_clock_and_waits_for_the_links_the_graph_waits_for(monkeypatch, tmp_path):
-    """As ``uav-landing graph --bag``: every node but the player with use_sim_time (the player
-    publishing /clock), and the same ready topics (a bag without ground truth: not that link)."""
+def _bag_of(path: Path, topics: dict) -> Path:
+    """A bag recording ``topics`` ({name: type}, one message each; only the names matter to the plan)."""
     from rosbags.rosbag2 import Writer
     from rosbags.typesys import Stores, get_typestore
 
-    bag = tmp_path / "recorded"
     typestore = get_typestore(Stores.ROS2_JAZZY)
-    with Writer(bag, version=9) as writer:
-        for topic, type_name in [("/camera/image_raw", "sensor_msgs/msg/Image"), ("/camera/camera_info", "sensor_msgs/msg/CameraInfo")]:
+    with Writer(path, version=9) as writer:
+        for topic, type_name in topics.items():
             writer.write(writer.add_connection(topic, type_name, typestore=typestore), 1, b"\x00\x01\x00\x00")
+    return path
+
+
+def test_launch_replay_runs_on_the_bags_clock_and_waits_for_the_links_the_graph_waits_for(monkeypatch, tmp_path):
+    """As ``uav-landing graph --bag``: every node but the player with use_sim_time (the player
+    publishing /clock), and the same ready topics (a bag without ground truth: not that link)."""
+    bag = _bag_of(tmp_path / "recorded", {"/camera/image_raw": "sensor_msgs/msg/Image", "/camera/camera_info": "sensor_msgs/msg/CameraInfo"})
     config = Path(__file__).parents[2] / "config"
     params = _launch_nodes(monkeypatch, str(bag), str(config))
     assert set(params) == set(GRAPH_NODES)
@@ -115,15 +132,7 @@ def test_launch_replay_runs_on_the_bags_clock_and_waits_for_the_links_the_graph_
 def test_launch_replays_compressed_frames_as_the_graph_does(monkeypatch, tmp_path):
     """A recording of image_transport's compressed frames: undistort decodes them and the player
     paces on them and waits for their link, with the same parameters ``uav-landing graph`` gives."""
-    from rosbags.rosbag2 import Writer
-    from rosbags.typesys import Stores, get_typestore
-
-    bag = tmp_path / "compressed"
-    typestore = get_typestore(Stores.ROS2_JAZZY)
-    with Writer(bag, version=9) as writer:
-        for topic, type_name in [("/camera/image_raw/compressed", "sensor_msgs/msg/CompressedImage"),
-                                 ("/camera/camera_info", "sensor_msgs/msg/CameraInfo")]:
-            writer.write(writer.add_connection(topic, type_name, typestore=typestore), 1, b"\x00\x01\x00\x00")
+    bag = _bag_of(tmp_path / "compressed", {"/camera/image_raw/compressed": "sensor_msgs/msg/CompressedImage", "/camera/camera_info": "sensor_msgs/msg/CameraInfo"})
     config = Path(__file__).parents[2] / "config"
     params = _launch_nodes(monkeypatch, str(bag), str(config))
     assert params["undistort"]["image_transport"] == "compressed" and "image_transport" not in params["detector"]
@@ -140,14 +149,7 @@ def test_launch_remaps_topics_in_every_node_as_the_graph_does(monkeypatch, tmp_p
     """A camera driver, or a recording, of other topic names: ``remap:=`` reaches every node, and a
     replay's player waits for the remapped recorded links as ``uav-landing graph --remap`` does."""
     import pytest
-    from rosbags.rosbag2 import Writer
-    from rosbags.typesys import Stores, get_typestore
-
-    bag = tmp_path / "deck_cam"
-    typestore = get_typestore(Stores.ROS2_JAZZY)
-    with Writer(bag, version=9) as writer:
-        for topic, type_name in [("/deck_cam/image_raw", "sensor_msgs/msg/Image"), ("/deck_cam/camera_info", "sensor_msgs/msg/CameraInfo")]:
-            writer.write(writer.add_connection(topic, type_name, typestore=typestore), 1, b"\x00\x01\x00\x00")
+    bag = _bag_of(tmp_path / "deck_cam", {"/deck_cam/image_raw": "sensor_msgs/msg/Image", "/deck_cam/camera_info": "sensor_msgs/msg/CameraInfo"})
     config = str(Path(__file__).parents[2] / "config")
     rule = "/deck_cam/image_raw:=/camera/image_raw,/deck_cam/camera_info:=/camera/camera_info"
     remappings = _launch_nodes(monkeypatch, str(bag), config, rule, remappings=True)
@@ -190,3 +192,31 @@ def test_compose_replay_runs_every_node_but_the_player_on_the_bags_clock():
     assert all(f"-p {key}:={value}" in services[PLAYER]["command"] for key, value in TRACKER_ACK)
     replay = [line for line in (docker / "README.md").read_text().splitlines() if "--profile replay up" in line]
     assert replay and all("USE_SIM_TIME=true " in line for line in replay)
+
+
+def test_the_replay_shuts_the_graph_down_the_graphs_drain_time_after_the_player_exits(monkeypatch, tmp_path):
+    bag = _bag_of(tmp_path / "bag", {"/camera/image_raw": "sensor_msgs/msg/Image", "/camera/camera_info": "sensor_msgs/msg/CameraInfo"})
+    actions = _launch_actions(monkeypatch, str(bag), CONFIG)
+    (player,) = [a for a in actions if type(a).__name__ == "Node" and a.kwargs["name"] == PLAYER]
+    (handler,) = [a for a in actions if type(a).__name__ == "RegisterEventHandler"]
+    on_exit = handler.args[0]
+    assert on_exit.kwargs["target_action"] is player
+    (timer,) = on_exit.kwargs["on_exit"]
+    parser = argparse.ArgumentParser()
+    graph_module.register(parser.add_subparsers())
+    assert timer.kwargs["period"] == parser.parse_args(["graph"]).drain == 2.0
+    (emit,) = timer.kwargs["actions"]
+    assert type(emit.kwargs["event"]).__name__ == "Shutdown"
+    live = _launch_actions(monkeypatch, "", CONFIG)
+    assert not [a for a in live if type(a).__name__ == "RegisterEventHandler"]
+    assert {a.kwargs["name"] for a in live} == set(GRAPH_NODES) - {PLAYER}
+
+
+def test_a_remapped_recording_of_compressed_frames_is_decoded_by_undistort(monkeypatch, tmp_path):
+    bag = _bag_of(tmp_path / "deck", {"/deck_cam/image_raw/compressed": "sensor_msgs/msg/CompressedImage",
+                                     "/deck_cam/camera_info": "sensor_msgs/msg/CameraInfo"})
+    rule = f"/deck_cam/image_raw/compressed:={COMPRESSED_FRAMES},/deck_cam/camera_info:=/camera/camera_info"
+    params = _launch_nodes(monkeypatch, str(bag), CONFIG, rule)
+    assert params["undistort"]["image_transport"] == "compressed"
+    assert all("image_transport" not in params[n] for n in GRAPH_NODES if n != "undistort")
+    assert params[PLAYER]["pace_topic"] == COMPRESSED_FRAMES and params[PLAYER]["ready_topics"][0] == COMPRESSED_FRAMES
