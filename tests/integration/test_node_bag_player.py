@@ -1,4 +1,5 @@
-"""``bag_player`` in-process over DDS: timed and paced playback, /clock, and bad bags or parameters."""
+"""``bag_player`` in-process over DDS: timed and paced playback, /clock, and bad bags or parameters;
+also its replay order, pacing by header stamp, timed rate, readiness and settle time, played in the test's thread."""
 
 import threading
 
@@ -7,26 +8,32 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PointStamped, PoseStamped
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
+from rclpy.serialization import deserialize_message
 from rosbags.rosbag2 import CompressionMode, StoragePlugin, Writer
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image
 from test_node_common import SMALL_CAMERA, frame_entries, participant_of, ros, write_bag  # noqa: F401 (fixture)
 
 from uav_landing_vision.config import ConfigError
-from uav_landing_vision.nodes.bag_player import BagPlayer
+from uav_landing_vision.nodes import bag_player as bag_player_module
+from uav_landing_vision.nodes.bag_player import FRAME_LAG_NS, BagPlayer, BagPlayerConfig
 from uav_landing_vision.nodes.qos import RELIABLE_QOS, IMAGE_QOS
 from uav_landing_vision.stamps import stamp_ns
 
 FRAMES = 5
 
 
+def _truth(t_ns: int, z: float = 0.0):
+    """A bag entry of /uav/ground_truth stamped and recorded at ``t_ns``."""
+    truth = PoseStamped()
+    truth.header.stamp.sec, truth.header.stamp.nanosec = divmod(t_ns, 1_000_000_000)
+    truth.pose.position.z = z
+    return ("/uav/ground_truth", "geometry_msgs/msg/PoseStamped", t_ns, truth)
+
+
 def _bag(tmp_path, storage=StoragePlugin.MCAP, frames=FRAMES, extra=(), compression=None):
     entries = frame_entries(SMALL_CAMERA, frames)
-    for i, (_, _, t, _) in enumerate(entries[::2]):
-        truth = PoseStamped()
-        truth.header.stamp.sec, truth.header.stamp.nanosec = divmod(t, 1_000_000_000)
-        truth.pose.position.z = 50.0 - i
-        entries.append(("/uav/ground_truth", "geometry_msgs/msg/PoseStamped", t, truth))
+    entries += [_truth(t, 50.0 - i) for i, (_, _, t, _) in enumerate(entries[::2])]
     entries = sorted(entries + list(extra), key=lambda e: e[2])  # stable: image before camera_info
     return write_bag(tmp_path / "bag", entries, storage, compression)
 
@@ -341,3 +348,124 @@ def test_bad_parameters_fail_start_up(ros, tmp_path, params, message):
         params = {"bag": str(_bag(tmp_path)), **params}
     with pytest.raises(ConfigError, match=message):
         BagPlayer(context=ros.context, parameter_overrides=[Parameter(k, value=v) for k, v in params.items()])
+
+
+# --- replay order, pacing, rate and readiness: played in the test's thread on the harness's executor ---
+
+def _player(ros, bag, **params) -> BagPlayer:
+    """A BagPlayer on the harness's executor: ``play(ros.executor)`` plays it in the test's thread."""
+    overrides = [Parameter("bag", value=str(bag))] + [Parameter(k, value=v) for k, v in params.items()]
+    return ros.add(BagPlayer(context=ros.context, parameter_overrides=overrides))
+
+
+def order(node):
+    return [(item[0].topic, item[1]) for item in node._messages()]
+
+
+def test_a_message_recorded_at_the_frames_bag_time_goes_before_the_frame_whatever_its_stamp(ros, tmp_path):
+    image = frame_entries(SMALL_CAMERA, 1)[0]
+    t = image[2]
+    other = PointStamped()
+    other.header.stamp.sec = 7
+    bag = write_bag(tmp_path / "bag", [image, ("/other", "geometry_msgs/msg/PointStamped", t, other)])
+    node = _player(ros, bag)
+    assert order(node) == [("/other", t), ("/camera/image_raw", t)]
+
+
+def test_a_camera_info_recorded_up_to_the_frame_lag_after_its_frame_goes_before_it(ros, tmp_path):
+    image, (topic, type_name, t, info) = frame_entries(SMALL_CAMERA, 1)
+    bag = write_bag(tmp_path / "bag", [image, (topic, type_name, t + FRAME_LAG_NS, info),
+                                       (topic, type_name, t + FRAME_LAG_NS + 1, info)])
+    node = _player(ros, bag)
+    assert order(node) == [("/camera/camera_info", t + FRAME_LAG_NS), ("/camera/image_raw", t),
+                           ("/camera/camera_info", t + FRAME_LAG_NS + 1)]
+
+
+def test_paced_frames_are_acknowledged_by_their_header_stamp_not_their_recording_time(ros, tmp_path):
+    """A recorder receives each frame after its camera took it: bag time = header stamp + 20 ms.
+    The acknowledgement (the tracker's status) carries the header stamp."""
+    frames = 4
+    entries = [(topic, type_name, t + 20_000_000, msg)
+               for topic, type_name, t, msg in frame_entries(SMALL_CAMERA, frames, image_first=False)]
+    node = _player(ros, write_bag(tmp_path / "bag", entries), mode="paced", ack_topic="test/ack",
+                   ack_type="geometry_msgs/msg/PoseStamped", ack_timeout_s=0.3)
+    node._missing = lambda: []
+    frames_pub = node._players["/camera/image_raw"]
+    real_publish = frames_pub.publish
+    sent = []
+
+    def publish_and_ack(raw):  # the downstream acknowledges at once
+        real_publish(raw)
+        msg = deserialize_message(raw, Image)
+        sent.append(stamp_ns(msg.header.stamp))
+        node._on_ack(PoseStamped(header=msg.header))
+
+    frames_pub.publish = publish_and_ack
+    assert node.play(ros.executor) == 0
+    assert sent == [1_000_000_000 + i * 33_000_000 for i in range(frames)]
+    assert (node.counters["acknowledged"], node.counters["ack_timeouts"]) == (frames, 0)
+
+
+def test_timed_playback_spaces_the_messages_by_their_bag_time_divided_by_the_rate(ros, tmp_path, monkeypatch):
+    times = [1_000_000_000, 1_100_000_000, 1_400_000_000, 2_000_000_000]
+    bag = write_bag(tmp_path / "bag", [_truth(t) for t in times])
+    deadlines = []
+    monkeypatch.setattr(bag_player_module, "_spin_until", lambda executor, deadline: deadlines.append(deadline))
+    node = _player(ros, bag, mode="timed", rate=4.0)
+    assert node.play(ros.executor) == 0
+    played = deadlines[-len(times):]  # after the ready settle time
+    assert [d - played[0] for d in played] == pytest.approx([(t - times[0]) * 1e-9 / 4.0 for t in times], abs=1e-6)
+
+
+def test_a_ready_topic_with_a_subscriber_but_no_publisher_is_not_ready(ros, tmp_path):
+    bag = write_bag(tmp_path / "bag", [_truth(1_000_000_000)])
+    node = _player(ros, bag, ready_topics=["/only_listened", "/uav/ground_truth"])
+    ros.collect(PoseStamped, "/only_listened", RELIABLE_QOS)
+    ros.collect(PoseStamped, "/uav/ground_truth", RELIABLE_QOS)
+    assert ros.spin_until(lambda: node.count_subscribers("/only_listened")
+                          and node._players["/uav/ground_truth"].get_subscription_count())  # discovery
+    assert node._missing() == ["publisher and subscriber of /only_listened"]
+
+
+def test_progress_every_zero_is_a_valid_setting_and_a_zero_ack_timeout_is_not():
+    assert BagPlayerConfig(bag="b", progress_every=0).progress_every == 0
+    with pytest.raises(ValueError, match="ack_timeout_s and ready_timeout_s must be > 0"):
+        BagPlayerConfig(bag="b", ack_timeout_s=0.0)
+    with pytest.raises(ValueError, match="progress_every must be >= 0"):
+        BagPlayerConfig(bag="b", progress_every=-1)
+
+
+def test_a_paced_player_is_not_ready_until_its_acknowledgement_has_a_publisher(ros, tmp_path):
+    bag = write_bag(tmp_path / "bag", frame_entries(SMALL_CAMERA, 1)[:1])  # one image
+    node = _player(ros, bag, mode="paced", ack_topic="/test/ack", ack_type="geometry_msgs/msg/PoseStamped")
+    ros.collect(Image, "/camera/image_raw", IMAGE_QOS)
+    assert ros.spin_until(lambda: node._players["/camera/image_raw"].get_subscription_count())  # discovery
+    assert node._missing() == ["publisher of /test/ack"]
+    ros.probe.create_publisher(PoseStamped, "/test/ack", RELIABLE_QOS)
+    assert ros.spin_until(lambda: node._ack_sub.get_publisher_count())
+    assert node._missing() == []
+
+
+def test_a_bag_that_cannot_be_read_to_its_end_fails_the_playback(ros, tmp_path, monkeypatch):
+    bag = write_bag(tmp_path / "bag", [_truth(t) for t in (1_000_000_000, 1_100_000_000)])
+    real = bag_player_module.bag_messages
+
+    def cut_off(reader):
+        it = real(reader)
+        yield next(it)
+        raise bag_player_module.BagError("chunk 2: bad CRC")
+
+    monkeypatch.setattr(bag_player_module, "bag_messages", cut_off)
+    node = _player(ros, bag, mode="timed", rate=1000.0)
+    assert node.play(ros.executor) == 1
+    assert node.counters["published"] == 1
+
+
+def test_once_ready_the_player_waits_its_settle_time_before_the_first_message(ros, tmp_path, monkeypatch):
+    bag = write_bag(tmp_path / "bag", [_truth(1_000_000_000)])
+    waits = []  # the seconds each spin was asked to wait, when asked
+    monkeypatch.setattr(bag_player_module, "_spin_until",
+                        lambda executor, deadline: waits.append(deadline - bag_player_module.time.monotonic()))
+    node = _player(ros, bag, mode="timed", ready_settle_s=2.5)
+    assert node.play(ros.executor) == 0
+    assert len(waits) == 2 and waits[0] == pytest.approx(2.5, abs=0.5) and waits[1] == pytest.approx(0.0, abs=0.5)

@@ -1,5 +1,7 @@
 """``detector``: refuses to start without a model; with a freshly initialised network exported to
-ONNX it runs in-process over DDS and publishes well-formed DetectionArray messages."""
+ONNX it runs in-process over DDS and publishes well-formed DetectionArray messages. With the network
+stood in for by a scripted detector and its callbacks called directly: which region each frame is
+searched in (the search window from the last pose, or the full frame) and the track box."""
 
 from pathlib import Path
 
@@ -14,6 +16,7 @@ from test_node_common import camera_info_msg, image_msg, rgb_frame, ros  # noqa:
 from uav_landing_msgs.msg import DetectionArray
 from uav_landing_vision.camera import CameraModel
 from uav_landing_vision.config import ConfigError
+from uav_landing_vision.detection.detector import Detections, search_window
 from uav_landing_vision.detection.track_box import grow_roi
 from uav_landing_vision.model import fixed_wing_mesh
 from uav_landing_vision.nodes import detector as detector_module
@@ -210,3 +213,154 @@ def test_track_box_where_the_network_finds_nothing(ros, model):
 def test_bad_parameters_fail_start_up(ros, override, message):
     with pytest.raises(ConfigError, match=message):
         DetectorNode(context=ros.context, cli_args=["--ros-args", "--params-file", str(PARAMS)], parameter_overrides=[override])
+
+
+# --- search window and track box, with a scripted network and the callbacks called directly ------
+
+BOX = np.array([[40.0, 28.0, 52.0, 36.0]], np.float32)  # what the scripted network finds
+
+
+class ScriptedDetector:
+    """Records the window of every search; finds BOX, except in the searches ``empty`` says."""
+
+    input_size, strides = (96, 64), (8,)
+
+    def __init__(self):
+        self.windows, self.box = [], BOX
+        self.empty = lambda window: False
+
+    def detect(self, frame, window=None):
+        self.windows.append(window)
+        if self.empty(window):
+            return Detections(np.zeros((0, 4), np.float32), np.zeros(0, np.float32))
+        return Detections(self.box.copy(), np.array([0.9], np.float32))
+
+
+@pytest.fixture
+def make_node(ros, monkeypatch):
+    """A DetectorNode on a scripted network whose publications are kept in ``node.published``."""
+
+    def make(*overrides):
+        scripted = ScriptedDetector()
+        monkeypatch.setattr(detector_module, "_load_detector", lambda config: scripted)
+        node = ros.add(DetectorNode(
+            context=ros.context, cli_args=["--ros-args", "--params-file", str(PARAMS)],
+            parameter_overrides=[Parameter("window_min_px", value=32), Parameter("window_grow", value=1.0), *overrides]))
+        node.published = []
+        node._pub.publish = node.published.append
+        return node, scripted
+
+    return make
+
+
+def pose_msg(sec: int, nanosec: int = 0, z: float = 8.0) -> PoseWithCovarianceStamped:
+    """The UAV z m ahead of the camera, level."""
+    msg = PoseWithCovarianceStamped()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
+    msg.pose.pose.position.z, msg.pose.pose.orientation.w = z, 1.0
+    return msg
+
+
+def calibrate(node):
+    node._on_camera_info(camera_info_msg(CAMERA))
+    assert node._calibration.camera is not None
+
+
+def expected_window():
+    roi = projected_roi(CAMERA, fixed_wing_mesh("high").vertices, [0, 0, 0, 1], [0, 0, 8.0])
+    return search_window(roi, CAMERA.width, CAMERA.height, 1.0, 32)
+
+
+def test_a_pose_older_than_the_image_within_the_max_age_sets_the_search_window(make_node):
+    node, net = make_node(Parameter("node.search_window", value=True))
+    calibrate(node)
+    node._on_pose(pose_msg(5))
+    node._on_image(image_msg(rgb_frame(CAMERA), "rgb8", sec=5, nanosec=400_000_000))
+    assert net.windows == [expected_window()] and node.counters["windowed"] == 1
+
+
+def test_a_pose_newer_than_the_image_is_not_used_for_the_search_window(make_node):
+    node, net = make_node(Parameter("node.search_window", value=True))
+    calibrate(node)
+    node._on_pose(pose_msg(5, 10_000_000))
+    node._on_image(image_msg(rgb_frame(CAMERA), "rgb8", sec=5))
+    assert net.windows == [None] and node.counters["windowed"] == 0
+
+
+def test_an_image_of_another_size_than_the_calibration_is_searched_whole(make_node):
+    node, net = make_node(Parameter("node.search_window", value=True))
+    calibrate(node)
+    node._on_pose(pose_msg(5))
+    other = CameraModel(128, 64, [[80.0, 0, 64.0], [0, 80.0, 32.0], [0, 0, 1]])
+    node._on_image(image_msg(rgb_frame(other), "rgb8", sec=5, nanosec=33_000_000))
+    assert net.windows == [None]
+
+
+def test_without_a_calibration_or_with_the_pose_behind_the_camera_the_full_frame_is_searched(make_node):
+    node, net = make_node(Parameter("node.search_window", value=True))
+    node._on_pose(pose_msg(5))
+    node._on_image(image_msg(rgb_frame(CAMERA), "rgb8", sec=5, nanosec=33_000_000))  # no camera_info_rect yet
+    calibrate(node)
+    node._on_pose(pose_msg(5, 66_000_000, z=-8.0))  # behind the camera: no projected box
+    node._on_image(image_msg(rgb_frame(CAMERA), "rgb8", sec=5, nanosec=99_000_000))
+    assert net.windows == [None, None] and len(node.published) == 2
+
+
+def test_a_window_that_holds_nothing_is_followed_by_a_full_frame_search(make_node):
+    node, net = make_node(Parameter("node.search_window", value=True))
+    calibrate(node)
+    node._on_pose(pose_msg(5))
+    net.empty = lambda window: window is not None
+    node._on_image(image_msg(rgb_frame(CAMERA), "rgb8", sec=5, nanosec=33_000_000))
+    assert net.windows == [expected_window(), None]
+    (out,) = node.published
+    assert [(d.roi.x_offset, d.roi.y_offset, d.roi.width, d.roi.height, d.score) for d in out.detections] == [
+        (40, 28, 12, 8, pytest.approx(0.9))]
+    assert node.counters["detections"] == 1 and node.counters["track_boxes"] == 0
+
+
+def test_without_the_search_window_every_frame_is_searched_whole_even_with_a_pose(make_node):
+    node, net = make_node(Parameter("node.search_window", value=False))
+    calibrate(node)
+    node._on_pose(pose_msg(5))
+    node._on_image(image_msg(rgb_frame(CAMERA), "rgb8", sec=5, nanosec=33_000_000))
+    assert net.windows == [None] and node.counters["windowed"] == 0
+
+
+def test_a_detection_restarts_the_track_box_count(make_node):
+    """track_box.max_frames = 2 frames in a row without a detection get the box; a detection in
+    between starts the count again."""
+    node, net = make_node(Parameter("track_box.max_frames", value=2))
+    calibrate(node)
+    node._on_pose(pose_msg(5))
+    found = iter([False, False, True, False, False, False])
+    boxes = []
+    for k in range(6):
+        hit = next(found)
+        net.empty = lambda window, hit=hit: not hit
+        node._on_image(image_msg(rgb_frame(CAMERA), "rgb8", sec=5, nanosec=(k + 1) * 20_000_000))
+        out = node.published[-1]
+        boxes.append([d.score for d in out.detections])
+    assert boxes == [[0.0], [0.0], [pytest.approx(0.9)], [0.0], [0.0], []]
+
+
+def test_a_window_near_the_right_edge_is_kept_inside_the_image(make_node):
+    """96 x 64: a pose projected at u = 85 px gets a 32 px window whose right side is the image's."""
+    node, net = make_node(Parameter("node.search_window", value=True))
+    calibrate(node)
+    msg = pose_msg(5)
+    msg.pose.pose.position.x = 3.7  # u = 48 + 80 * 3.7 / 8 = 85
+    node._on_pose(msg)
+    node._on_image(image_msg(rgb_frame(CAMERA), "rgb8", sec=5, nanosec=33_000_000))
+    roi = projected_roi(CAMERA, fixed_wing_mesh("high").vertices, [0, 0, 0, 1], [3.7, 0, 8.0])
+    x, y, w, h = net.windows[0]
+    assert (x + w, w, h) == (96, 32, 32) and net.windows == [search_window(roi, 96, 64, 1.0, 32)]
+    assert y == int(np.clip(round(roi[1] + roi[3] / 2 - 16), 0, 32))
+
+
+def test_a_detection_over_the_image_corner_is_clipped_to_the_image(make_node):
+    node, net = make_node()
+    net.box = np.array([[80.0, 56.0, 100.0, 70.0]], np.float32)
+    node._on_image(image_msg(rgb_frame(CAMERA), "rgb8", sec=5))
+    (out,) = node.published
+    assert [(d.roi.x_offset, d.roi.y_offset, d.roi.width, d.roi.height) for d in out.detections] == [(80, 56, 16, 8)]

@@ -1,10 +1,14 @@
 """``pose_boosting`` in-process over DDS: rendered frame + detection → hypotheses; matching by
-stamp in either order; bad input dropped. Also the rendered scene ``test_node_tracker`` uses."""
+stamp in either order; bad input dropped. Also the rendered scene ``test_node_tracker`` uses. With the
+pose database and generator stood in for by scripted ones and the callbacks called directly: the
+ROI given to the boosting core, the PoseHypotheses made of its hypotheses, and the pairs held
+until a calibration the database matches."""
 
 import dataclasses
 import functools
 import math
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -13,12 +17,13 @@ from sensor_msgs.msg import CameraInfo, Image, RegionOfInterest
 from test_node_common import camera_info_msg, image_msg, ros  # noqa: F401 (fixture)
 
 from uav_landing_msgs.msg import Detection, DetectionArray, PoseHypotheses
-from uav_landing_vision.boosting import DatabaseConfig, HypothesisConfig, PoseHypothesisGenerator, build_database
+from uav_landing_vision.boosting import DatabaseConfig, DatabaseError, HypothesisConfig, PoseHypothesisGenerator, build_database
 from uav_landing_vision.boosting.database import NOMINAL_QUAT
 from uav_landing_vision.camera import CameraModel
 from uav_landing_vision.config import ConfigError, from_mapping, load_node_parameters
 from uav_landing_vision.geometry import euler_zyx_to_quat, quat_multiply
 from uav_landing_vision.model import fixed_wing_mesh
+from uav_landing_vision.nodes import pose_boosting as pose_boosting_module
 from uav_landing_vision.nodes.pose_boosting import PoseBoostingNode
 from uav_landing_vision.nodes.qos import IMAGE_QOS, RELIABLE_QOS
 from uav_landing_vision.render import Renderer
@@ -260,18 +265,6 @@ def test_a_frame_dropped_for_want_of_calibration_says_why_the_camera_info_was_re
     assert "(the latest camera_info was refused: plumb_bob distortion [-0.2, 0.05, 0.0, 0.0, 0.0] in the camera_info" in rig.node.last_error
 
 
-def test_frames_before_the_first_calibration_are_held_as_many_as_the_cache(ros, small_database):
-    rig = Rig(ros, small_database, Parameter("node.cache_size", value=2))
-    for k in range(3):
-        rig.image_pub.publish(frame_msg(k))
-        rig.det_pub.publish(detections_msg(k, [(*true_roi(k), 0.9)]))
-    assert ros.spin_until(lambda: rig.node.counters["dropped"] == 1)
-    assert rig.node.last_error.startswith(f"image stamped {stamp_ns(frame_msg(0).header.stamp)} ns: no calibration")
-    rig.send_info()
-    assert ros.spin_until(lambda: len(rig.out) == 2)
-    assert [o.header for o in rig.out] == [frame_msg(1).header, frame_msg(2).header]
-
-
 @pytest.mark.parametrize(
     "override, message",
     [
@@ -286,3 +279,122 @@ def test_bad_parameters_fail_start_up(ros, override, message):
         overrides = {p.name: p for p in (Parameter("particles", value=M), Parameter("kept", value=M0), override)}
         PoseBoostingNode(context=ros.context, cli_args=["--ros-args", "--params-file", str(PARAMS)],
                          parameter_overrides=list(overrides.values()))
+
+
+# --- scripted database and generator, the callbacks called directly ----------------------------
+
+OTHER = CameraModel(320, 240, [[300.0, 0, 160.0], [0, 300.0, 120.0], [0, 0, 1]])
+
+
+class ScriptedGenerator:
+    """Made for CAMERA only (DatabaseError otherwise); records each ROI; returns ``hyps``."""
+
+    made = []
+
+    def __init__(self, database, camera, config):
+        if not np.array_equal(camera.K, CAMERA.K):
+            raise DatabaseError("pose database was built for another camera")
+        self.rois, self.hyps = [], None
+        ScriptedGenerator.made.append(self)
+
+    def generate(self, frame, roi, count):
+        self.rois.append(tuple(int(v) for v in roi))
+        rng = np.random.default_rng(3)
+        quats = rng.normal(size=(count, 4)) * 3.0  # not unit: the node normalises them
+        return self.hyps or SimpleNamespace(obb=SimpleNamespace(x=100.0, y=80.0, w=30.0, h=12.0, theta=30.0),
+                                            quats=quats, positions=rng.normal(size=(count, 3)),
+                                            distances=np.sort(rng.random(count)))
+
+
+def make_node(ros, monkeypatch, *overrides) -> PoseBoostingNode:
+    """A PoseBoostingNode on ScriptedGenerator whose publications are kept in ``node.published``."""
+    ScriptedGenerator.made = []
+    monkeypatch.setattr(pose_boosting_module, "_load_database",
+                        lambda config: SimpleNamespace(quats=np.zeros((1, 4)), distance=10.0))
+    monkeypatch.setattr(pose_boosting_module, "PoseHypothesisGenerator", ScriptedGenerator)
+    n = ros.add(PoseBoostingNode(
+        context=ros.context, cli_args=["--ros-args", "--params-file", str(PARAMS)],
+        parameter_overrides=[Parameter("particles", value=M), Parameter("kept", value=M0), *overrides]))
+    n.published = []
+    n._pub.publish = n.published.append
+    return n
+
+
+@pytest.fixture
+def node(ros, monkeypatch):
+    return make_node(ros, monkeypatch)
+
+
+def calibrate(node, camera=CAMERA):
+    node._on_camera_info(camera_info_msg(camera))
+
+
+def send(node, k, boxes):
+    """Frame k's image, then its detections (from the detector's frame_id, not the image's)."""
+    node._on_image(frame_msg(k))
+    detections = detections_msg(k, boxes)
+    detections.header.frame_id = "detector_frame"
+    node._on_detections(detections)
+
+
+def test_a_detection_scored_above_one_is_not_used(node):
+    calibrate(node)
+    send(node, 0, [(10, 10, 40, 20, 1.5), (100, 60, 30, 12, 0.4)])
+    assert ScriptedGenerator.made[-1].rois == [(100, 60, 30, 12)]
+    assert node.counters["dropped"] == 1 and "score 1.5 is not in [0, 1]" in node.last_error
+    assert not node.last_error.endswith("more")  # every unusable one named: no "and 0 more"
+
+
+def test_a_box_in_the_frame_but_outside_its_height_as_a_width_is_used(node):
+    """A 320 x 240 frame: x up to 320, y up to 240."""
+    calibrate(node)
+    send(node, 0, [(250, 10, 60, 20, 0.9)])
+    assert ScriptedGenerator.made[-1].rois == [(250, 10, 60, 20)] and node.counters["dropped"] == 0
+
+
+def test_hypotheses_carry_the_images_header_unit_quaternions_and_the_obb_in_radians(node):
+    calibrate(node)
+    send(node, 0, [(100, 60, 30, 12, 0.9)])
+    (out,) = node.published
+    assert out.header == frame_msg(0).header  # the image's frame_id, not the detector's
+    quats = np.array([[p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w] for p in out.poses])
+    assert len(out.poses) == M and np.allclose(np.linalg.norm(quats, axis=1), 1.0, atol=1e-12)
+    expected = ScriptedGenerator(None, CAMERA, None).generate(None, (0, 0, 1, 1), M).quats
+    np.testing.assert_allclose(quats, expected / np.linalg.norm(expected, axis=1, keepdims=True), atol=1e-12)
+    assert (out.obb.center_x, out.obb.center_y, out.obb.width, out.obb.height) == (100.0, 80.0, 30.0, 12.0)
+    assert out.obb.angle == pytest.approx(math.radians(30.0))
+
+
+@pytest.mark.parametrize("theta_deg, angle", [(90.0, -math.pi / 2), (120.0, math.radians(-60.0)), (89.0, math.radians(89.0))])
+def test_the_obb_angle_is_given_in_minus_half_pi_to_half_pi(node, theta_deg, angle):
+    """OpenCV's minAreaRect angle is in (0, 90]: 90 degrees is the line at -pi/2."""
+    calibrate(node)
+    generator = ScriptedGenerator.made[-1]
+    generator.hyps = SimpleNamespace(obb=SimpleNamespace(x=1.0, y=2.0, w=3.0, h=1.0, theta=theta_deg),
+                                     quats=np.tile([0.0, 0.0, 0.0, 1.0], (M, 1)), positions=np.zeros((M, 3)),
+                                     distances=np.arange(M, dtype=float))
+    send(node, 0, [(100, 60, 30, 12, 0.9)])
+    assert node.published[-1].obb.angle == pytest.approx(angle, abs=1e-12)
+
+
+def test_after_a_refused_calibration_frames_wait_for_a_matching_one(node):
+    """Frames are never boosted with the database matched to a calibration the camera no longer has."""
+    calibrate(node)
+    send(node, 0, [(100, 60, 30, 12, 0.9)])
+    assert len(node.published) == 1
+    calibrate(node, OTHER)
+    assert node.counters["dropped"] == 1 and "pose database was built for another camera" in node.last_error
+    send(node, 1, [(100, 60, 30, 12, 0.9)])
+    assert len(node.published) == 1  # held
+    calibrate(node)
+    assert len(node.published) == 2 and node.published[-1].header == frame_msg(1).header
+
+
+def test_pairs_before_the_first_calibration_are_held_as_many_as_the_cache_size(ros, monkeypatch):
+    node = make_node(ros, monkeypatch, Parameter("node.cache_size", value=2))
+    for k in range(3):
+        send(node, k, [(100, 60, 30, 12, 0.9)])
+    assert node.published == [] and node.counters["dropped"] == 1
+    assert node.last_error.startswith(f"image stamped {1_000_000_000} ns: no calibration")
+    calibrate(node)
+    assert [o.header for o in node.published] == [frame_msg(1).header, frame_msg(2).header]
