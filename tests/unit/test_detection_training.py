@@ -282,12 +282,27 @@ def test_folders_whose_frames_letterbox_to_different_sizes_are_refused(tmp_path)
         train(TrainConfig(**{**cfg.__dict__, "data": (str(tmp_path / "wide"), str(tmp_path / "same"))}), progress=False)
 
 
-def test_fine_tuning_starts_from_an_exported_model(tmp_path):
-    """weights_from_onnx unfolds an export's BatchNorms: with them frozen (set_training) the torch
-    network computes the model's outputs, and training steps leave their statistics alone."""
+def _tuned_like_the_export(path):
+    """A network given the weights of the exported model ``path`` (its BatchNorms frozen), checked
+    to compute the model's outputs."""
     import onnxruntime as ort
 
     from uav_landing_vision.detection.train import set_training, weights_from_onnx
+
+    x = torch.rand(1, 3, 96, 160)
+    expected = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"]).run(None, {"images": x.numpy()})
+    tuned = UavDetectorNet(width=16, blocks=(1, 1, 1))
+    tuned.load_state_dict(weights_from_onnx(path, tuned))
+    set_training(tuned, frozen_normalisation=True)
+    for o, t in zip(expected, tuned(x)):
+        np.testing.assert_allclose(t.detach().numpy(), o, atol=1e-4)
+    return tuned
+
+
+def test_fine_tuning_starts_from_an_exported_model(tmp_path):
+    """weights_from_onnx unfolds an export's BatchNorms: with them frozen (set_training) the torch
+    network computes the model's outputs, and training steps leave their statistics alone."""
+    from uav_landing_vision.detection.train import weights_from_onnx
 
     torch.manual_seed(1)
     net = UavDetectorNet(width=16, blocks=(1, 1, 1))
@@ -299,14 +314,7 @@ def test_fine_tuning_starts_from_an_exported_model(tmp_path):
                 m.weight.uniform_(0.5, 1.5)
                 m.bias.uniform_(-0.2, 0.2)
     path = export_onnx(net.eval(), tmp_path / "det.onnx", (640, 384))
-    x = torch.rand(1, 3, 96, 160)
-    expected = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"]).run(None, {"images": x.numpy()})
-
-    tuned = UavDetectorNet(width=16, blocks=(1, 1, 1))
-    tuned.load_state_dict(weights_from_onnx(path, tuned))
-    set_training(tuned, frozen_normalisation=True)
-    for o, t in zip(expected, tuned(x)):
-        np.testing.assert_allclose(t.detach().numpy(), o, atol=1e-4)
+    tuned = _tuned_like_the_export(path)
     stats = {k: v.clone() for k, v in tuned.state_dict().items() if "running" in k}
     tuned(torch.rand(2, 3, 96, 160)).__getitem__(0).sum().backward()
     assert all(torch.equal(tuned.state_dict()[k], v) for k, v in stats.items())
@@ -320,20 +328,11 @@ def test_fine_tuning_starts_from_an_export_whose_convolutions_have_no_bias(tmp_p
     """A freshly initialised network folds to zero biases, which the exporter leaves out of its
     convolutions: such a model is read with zero biases (it was refused as "no convolution")."""
     import onnx
-    import onnxruntime as ort
-
-    from uav_landing_vision.detection.train import set_training, weights_from_onnx
 
     torch.manual_seed(2)
     path = export_onnx(UavDetectorNet(width=16, blocks=(1, 1, 1)).eval(), tmp_path / "fresh.onnx", (640, 384))
     assert any(n.op_type == "Conv" and len(n.input) == 2 for n in onnx.load(str(path)).graph.node)
-    x = torch.rand(1, 3, 96, 160)
-    expected = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"]).run(None, {"images": x.numpy()})
-    tuned = UavDetectorNet(width=16, blocks=(1, 1, 1))
-    tuned.load_state_dict(weights_from_onnx(path, tuned))
-    set_training(tuned, frozen_normalisation=True)
-    for o, t in zip(expected, tuned(x)):
-        np.testing.assert_allclose(t.detach().numpy(), o, atol=1e-4)
+    _tuned_like_the_export(path)
 
 
 @pytest.mark.parametrize("kwargs, message", [
