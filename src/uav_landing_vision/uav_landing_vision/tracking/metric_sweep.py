@@ -95,24 +95,14 @@ def truth_value(test: SweepTest, distance: float = NOMINAL_DISTANCE_M) -> float:
     return distance if (test.kind, test.axis) == ("translation", 2) else 0.0
 
 
-def sweep_camera(background: str = "normal"):
-    """The rectified camera of the ``background`` scenario."""
-    from ..sim.config import load_scenario
-    from ..sim.simulate import scenario_camera
-
-    return scenario_camera(load_scenario(background)).rectified()
-
-
-def sweep_frame(background: str = "normal", distance: float = NOMINAL_DISTANCE_M, seed: int = 0):
-    """Rectified camera and the simulator's RGB frame of the nominal pose over ``background``."""
+def sweep_frame(scenario, camera, distance: float = NOMINAL_DISTANCE_M, seed: int = 0) -> np.ndarray:
+    """The simulator's RGB frame, seen by the rectified ``camera``, of the nominal pose over
+    ``scenario``'s background."""
     from ..sim.backgrounds import make_background
-    from ..sim.config import load_scenario
     from ..sim.simulate import generators, sun_direction
     from ..sim.synthesis import FrameSynthesizer
     from ..sim.trajectory import camera_mount
 
-    scenario = load_scenario(background)
-    camera = sweep_camera(background)
     rngs = generators(seed)
     with FrameSynthesizer(camera, scenario.imaging) as synth:
         sky = make_background(scenario.background, synth.render_camera, scenario.ship, rngs["background"])
@@ -120,7 +110,7 @@ def sweep_frame(background: str = "normal", distance: float = NOMINAL_DISTANCE_M
         light = cam_rot.T @ sun_direction(scenario)
         quat, trans = nominal_pose(distance)
         frame, _ = synth.frame(sky.frame(0, 0.0, cam_rot, cam_pos), quat, trans, light, np.zeros(2), rngs["noise"])
-    return camera, frame
+    return frame
 
 
 def run_sweep(metrics=tuple(VARIANTS), distance: float = NOMINAL_DISTANCE_M, background: str = "normal",
@@ -131,14 +121,17 @@ def run_sweep(metrics=tuple(VARIANTS), distance: float = NOMINAL_DISTANCE_M, bac
     """
     from ..model import SPAN, fixed_wing_mesh
     from ..render import Renderer
+    from ..sim.config import load_scenario
+    from ..sim.simulate import scenario_camera
 
     if not 0.5 < distance < np.inf:
         raise ValueError(f"distance must be finite and exceed 0.5 m, got {distance}")
-    fx = sweep_camera(background).fx  # checked before the frame is made
-    if fx * SPAN / distance < MIN_SPAN_PX:  # the curves would be noise (peaks at -180° at 10 km)
-        raise ValueError(f"at {distance:g} m the UAV spans {fx * SPAN / distance:.1f} px, "
+    scenario = load_scenario(background)
+    camera = scenario_camera(scenario).rectified()
+    if camera.fx * SPAN / distance < MIN_SPAN_PX:  # the curves would be noise (peaks at -180° at 10 km)
+        raise ValueError(f"at {distance:g} m the UAV spans {camera.fx * SPAN / distance:.1f} px, "
                          f"under {MIN_SPAN_PX}: choose a smaller distance")
-    camera, frame = sweep_frame(background, distance, seed)
+    frame = sweep_frame(scenario, camera, distance, seed)  # after the check: it runs the simulator
     with Renderer(camera, fixed_wing_mesh("low"), tile=tile, max_batch=512) as renderer:
         scorers = {}
         for metric in metrics:
