@@ -77,3 +77,26 @@ def shift_rasterisation(monkeypatch):
         monkeypatch.setattr(renderer, "tile_boxes", shifted)
 
     return shift
+
+
+@pytest.fixture
+def interrupt_at_second_call(monkeypatch):
+    """``interrupt(module, name, run)``: ``run()`` with ``module.name`` raising KeyboardInterrupt at
+    its second call (Ctrl-C in a training run's second validation: its last.pt holds epoch 1), the
+    interrupt expected; ``module.name`` is itself again afterwards."""
+
+    def interrupt(module, name: str, run) -> None:
+        original, calls = getattr(module, name), []
+
+        def interrupted(*args):
+            calls.append(1)
+            if len(calls) == 2:
+                raise KeyboardInterrupt
+            return original(*args)
+
+        monkeypatch.setattr(module, name, interrupted)
+        with pytest.raises(KeyboardInterrupt):
+            run()
+        monkeypatch.setattr(module, name, original)
+
+    return interrupt

@@ -362,7 +362,7 @@ def test_train_detector_refuses_an_empty_input_size_before_reading_data(tmp_path
         main(["train-detector", "--data", str(tmp_path / "none"), "--out", str(tmp_path / "run"), "--input", "0x0"])
 
 
-def test_a_resumed_run_ends_as_the_uninterrupted_one(tmp_path, monkeypatch):
+def test_a_resumed_run_ends_as_the_uninterrupted_one(tmp_path, interrupt_at_second_call):
     from uav_landing_vision.camera import CameraModel, save_camera_info_yaml
     from uav_landing_vision.detection import train as training
     from uav_landing_vision.detection.dataset import DatasetConfig, generate
@@ -376,18 +376,7 @@ def test_a_resumed_run_ends_as_the_uninterrupted_one(tmp_path, monkeypatch):
     whole = training.TrainConfig(out=str(tmp_path / "whole"), **settings)
     split = training.TrainConfig(out=str(tmp_path / "split"), **settings)
     training.train(whole, progress=False)
-    validate, calls = training.validate, []
-
-    def interrupted(*args):  # Ctrl-C in epoch 2's validation: last.pt holds epoch 1
-        calls.append(1)
-        if len(calls) == 2:
-            raise KeyboardInterrupt
-        return validate(*args)
-
-    monkeypatch.setattr(training, "validate", interrupted)
-    with pytest.raises(KeyboardInterrupt):
-        training.train(split, progress=False)
-    monkeypatch.setattr(training, "validate", validate)
+    interrupt_at_second_call(training, "validate", lambda: training.train(split, progress=False))
     training.train(split, resume=True, progress=False)
     a, b = training.load_checkpoint(whole), training.load_checkpoint(split)
     assert all(torch.equal(a["net"][k], b["net"][k]) for k in a["net"])

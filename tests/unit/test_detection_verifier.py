@@ -377,7 +377,8 @@ def test_predict_gives_probabilities_of_the_verifier_logits():
     np.testing.assert_allclose(prob, np.full(5, 1 / (1 + np.exp(2.0))), rtol=1e-6)
 
 
-def test_a_resumed_verifier_run_continues_after_its_last_epoch_and_ends_as_the_uninterrupted_one(tmp_path, monkeypatch):
+def test_a_resumed_verifier_run_continues_after_its_last_epoch_and_ends_as_the_uninterrupted_one(tmp_path, monkeypatch,
+                                                                                             interrupt_at_second_call):
     import torch
 
     _stub_mining(monkeypatch, _premined(8, 8))
@@ -385,18 +386,7 @@ def test_a_resumed_verifier_run_continues_after_its_last_epoch_and_ends_as_the_u
     whole = vt.VerifierTrainConfig(out=str(tmp_path / "whole"), **settings)
     split = vt.VerifierTrainConfig(out=str(tmp_path / "split"), **settings)
     vt.train_verifier(whole, progress=False)
-    metrics, calls = vt.validation_metrics, []
-
-    def interrupted(*args):  # Ctrl-C in epoch 2's validation: last.pt holds epoch 1
-        calls.append(1)
-        if len(calls) == 2:
-            raise KeyboardInterrupt
-        return metrics(*args)
-
-    monkeypatch.setattr(vt, "validation_metrics", interrupted)
-    with pytest.raises(KeyboardInterrupt):
-        vt.train_verifier(split, progress=False)
-    monkeypatch.setattr(vt, "validation_metrics", metrics)
+    interrupt_at_second_call(vt, "validation_metrics", lambda: vt.train_verifier(split, progress=False))
     log = vt.train_verifier(split, resume=True, progress=False)
     assert [e["epoch"] for e in log["epochs"]] == [1, 2, 3]
     from uav_landing_vision.detection.train import load_checkpoint
