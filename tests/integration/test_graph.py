@@ -537,23 +537,26 @@ class RecordingEvent:
         return self._set
 
 
-def test_the_graph_waits_the_drain_time_after_the_bag_is_played(monkeypatch, capsys, tmp_path):
+def _replay_drained_after(monkeypatch, tmp_path, player_then: str) -> Graph:
+    """undistort and a player that does ``player_then`` once undistort runs, with a 3.25 s drain
+    and a stop event that records its waits."""
     flag = tmp_path / "running"
-    _fake_nodes(monkeypatch, {"undistort": _running(flag), PLAYER: _once_running(flag, "pass")})
+    _fake_nodes(monkeypatch, {"undistort": _running(flag), PLAYER: _once_running(flag, player_then)})
     graph = Graph(["undistort", PLAYER], tmp_path, {"undistort": [], PLAYER: []}, dict(os.environ), stop_timeout=5.0,
                   drain_s=3.25)
     graph._stop_requested = RecordingEvent()
+    return graph
+
+
+def test_the_graph_waits_the_drain_time_after_the_bag_is_played(monkeypatch, capsys, tmp_path):
+    graph = _replay_drained_after(monkeypatch, tmp_path, "pass")
     assert graph.run() == 0
     assert 3.25 in graph._stop_requested.waits
     assert "bag played; stopping the graph in 3.25 s" in capsys.readouterr().out
 
 
 def test_a_player_that_fails_fails_the_graph_without_a_drain(monkeypatch, capsys, tmp_path):
-    flag = tmp_path / "running"
-    _fake_nodes(monkeypatch, {"undistort": _running(flag), PLAYER: _once_running(flag, "raise SystemExit(1)")})
-    graph = Graph(["undistort", PLAYER], tmp_path, {"undistort": [], PLAYER: []}, dict(os.environ), stop_timeout=5.0,
-                  drain_s=3.25)
-    graph._stop_requested = RecordingEvent()
+    graph = _replay_drained_after(monkeypatch, tmp_path, "raise SystemExit(1)")
     assert graph.run() == 1
     output = capsys.readouterr().out
     assert "bag_player exited with code 1; stopping the graph" in output and "bag played" not in output
