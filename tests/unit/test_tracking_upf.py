@@ -575,6 +575,8 @@ def test_variant_parsing_and_configuration():
             TrackerConfig(**bad)
     with pytest.raises(ValueError, match="seed must be a non-negative integer, got -1"):
         TrackerConfig(seed=-1)
+    with pytest.raises(ValueError, match="M = 5, boosted = 25"):  # fewer particles than boosted
+        TrackerConfig(particles=5)
 
 
 def test_shipped_tracker_yaml_is_the_default(tmp_path):

@@ -123,7 +123,8 @@ class TrackerConfig:
         if self.variant not in COMBINATIONS:
             raise ValueError(f"variant must be one of {COMBINATIONS}, got {self.variant!r}")
         if self.iterations < 0 or self.particles < 2 or not 1 <= self.boosted <= self.particles:
-            raise ValueError("need iterations N >= 0, particles M >= 2 and 1 <= boosted <= M")
+            raise ValueError("need iterations N >= 0, particles M >= 2 and 1 <= boosted <= M, got "
+                             f"N = {self.iterations}, M = {self.particles}, boosted = {self.boosted}")
         if self.metric not in LIKELIHOODS:
             raise ValueError(f"metric must be one of {sorted(LIKELIHOODS)}, got {self.metric!r}")
         if self.resampling not in RESAMPLERS:
