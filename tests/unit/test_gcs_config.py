@@ -1,5 +1,6 @@
 """The gcs_bridge parameter file and its validation."""
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -90,6 +91,13 @@ def edit(path: str, value):
 def test_invalid_parameters_are_named(path, value, message):
     with pytest.raises(ValueError, match=message):
         config_from_parameters(edit(path, value))
+
+
+@pytest.mark.parametrize("rate", [math.inf, math.nan, -1.0])
+def test_a_cone_built_in_code_refuses_a_range_rate_bound_that_checks_nothing(rate):
+    """The cone's own check, not the parameter loader's (which refuses a non-finite number before it)."""
+    with pytest.raises(ValueError, match="max_range_rate_mps"):
+        dataclasses.replace(load_config(SHIPPED).cone, max_range_rate_mps=rate)
 
 
 def test_missing_section(tmp_path):

@@ -9,7 +9,7 @@ import pytest
 from test_gcs_frames import camera_pose_from_truth
 
 from uav_landing_vision.gcs import GcsBridge, Stage, StageMachine, cone_geometry, load_config
-from uav_landing_vision.gcs.bridge import TRACKER_ACQUIRING, TRACKER_LOST, TRACKER_TRACKING
+from uav_landing_vision.gcs.bridge import TRACKER_ACQUIRING, TRACKER_LOST, TRACKER_TRACKING, status_text
 from uav_landing_vision.gcs.landing import ConeGeometry, glide_slope_angle, inside_cone, lateral_angle
 
 CONFIG = load_config(Path(__file__).parents[2] / "config" / "gcs_bridge.yaml")
@@ -156,6 +156,13 @@ def test_nominal_landing(bridge):
     assert all(len(text) <= 50 for text, _ in bridge.sender.texts)
 
 
+def test_stage_change_text_gives_range_glide_slope_error_and_lateral_angle_in_degrees():
+    geometry = ConeGeometry(range=42.04, glide_slope_angle=math.radians(6.3), glide_slope_error=math.radians(0.3),
+                            lateral_angle=math.radians(-1.2), inside_cone=True)
+    assert status_text(Stage.LAND, geometry) == "VISION LAND r=42.0m gs=+0.3 lat=-1.2deg"
+    assert status_text(Stage.GO_AROUND, None) == "VISION GO_AROUND (no track)"
+
+
 def test_guidance_matches_truth(bridge):
     fly(bridge, approach(), t_end=3.0)
     rng = 36.0
@@ -276,8 +283,8 @@ def test_pose_stamped_ahead_of_the_clock_is_refused_and_does_not_shut_out_later_
     p_cam, q_cam = camera_pose(on_axis(30.0))
     with pytest.raises(ValueError, match="ahead of the clock"):
         bridge.on_pose(100.0, p_cam, q_cam, COV, now_s=4.6)
-    with pytest.raises(ValueError, match="ahead of the clock"):  # the tolerance is 0.05 s
-        bridge.on_pose(4.66, p_cam, q_cam, COV, now_s=4.6)
+    with pytest.raises(ValueError, match="ahead of the clock"):  # 55 ms: the tolerance is 0.05 s
+        bridge.on_pose(4.655, p_cam, q_cam, COV, now_s=4.6)
     assert bridge.on_pose(4.55, p_cam, q_cam, COV, now_s=4.6)  # the next correct pose is taken
     # 40 m to starboard: outside the cone, so LAND ends at the next tick
     p_cam, q_cam = camera_pose(on_axis(30.0, lateral_m=40.0))
@@ -628,22 +635,24 @@ def test_a_waiting_pose_ahead_of_a_clock_that_jumped_back_is_forgotten(bridge):
 
 
 def test_a_pose_a_little_ahead_of_the_clock_is_used(bridge):
-    """A camera clock 20 ms ahead of the bridge's, within the tolerance: the pose guides."""
+    """A camera clock 45 ms ahead of the bridge's, within the tolerance (0.05 s): the pose guides."""
     fly(bridge, approach(), t_end=(120.0 - 30.0) / 20.0)  # LAND at 30 m
     p_cam, q_cam = camera_pose(on_axis(29.0))
-    assert bridge.on_pose(4.65, p_cam, q_cam, COV, now_s=4.63)
-    bridge.on_tracker_state(TRACKER_TRACKING, 4.65)
+    assert bridge.on_pose(4.675, p_cam, q_cam, COV, now_s=4.63)
+    bridge.on_tracker_state(TRACKER_TRACKING, 4.675)
     result = bridge.tick(4.64)
-    assert "ODOMETRY" in result.sent and result.guidance.stage == Stage.LAND and result.guidance.stamp_s == 4.65
+    assert "ODOMETRY" in result.sent and result.guidance.stage == Stage.LAND and result.guidance.stamp_s == 4.675
 
 
 def test_a_pose_exactly_the_stale_timeout_old_is_still_fresh():
+    """Fresh while now − stamp <= stale_timeout_s, on arrival as at the tick (binary-exact times)."""
     cfg = dataclasses.replace(CONFIG, stale_timeout_s=0.25, mavlink=dataclasses.replace(CONFIG.mavlink, rate_hz=4.0))
     bridge = GcsBridge(cfg, sender=RecordingSender())
     bridge.on_tracker_state(TRACKER_TRACKING, 0.5)
     p_cam, q_cam = camera_pose(on_axis(40.0))
-    assert bridge.on_pose(0.5, p_cam, q_cam, COV, now_s=0.5)
+    assert bridge.on_pose(0.5, p_cam, q_cam, COV, now_s=0.75)
     assert "ODOMETRY" in bridge.tick(0.75).sent
+    assert not bridge.on_pose(1.0, p_cam, q_cam, COV, now_s=1.25 + 2.0**-20)  # just past it: stale
 
 
 def test_the_approach_course_is_in_degrees():

@@ -9,12 +9,14 @@ outage never reached the GCS).
 import dataclasses
 import errno
 import os
+import select
 import socket
 import struct
 import termios
 import threading
 import time
 import tty
+import types
 from unittest import mock
 
 import pytest
@@ -121,6 +123,14 @@ def free_port(kind=socket.SOCK_STREAM) -> int:
     with socket.socket(socket.AF_INET, kind) as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+@pytest.fixture
+def monotonic(monkeypatch):
+    """The links' monotonic clock, a fake that stands still until the test moves ``monotonic.now``."""
+    clock = types.SimpleNamespace(now=1000.0)
+    monkeypatch.setattr(link_module, "time", types.SimpleNamespace(monotonic=lambda: clock.now))
+    return clock
 
 
 class TcpGcs:
@@ -278,6 +288,27 @@ def test_udpout_tells_whether_anybody_listens_and_sends_all_the_same():
     flight.assert_landing_went_on()
 
 
+def test_udpout_sends_the_frame_that_meets_an_earlier_frames_port_unreachable():
+    """The first frame finds nobody (loopback answers "port unreachable" at once); the GCS then
+    starts on that port. The next frame's send raises the pending refusal, and it must still go out."""
+    port = free_port(socket.SOCK_DGRAM)
+    link = link_module.open_transport(f"udpout:127.0.0.1:{port}")
+    gcs = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        link.write(b"first")
+        poller = select.poll()
+        poller.register(link._sock.fileno(), select.POLLERR)
+        assert poller.poll(2000), "no port unreachable came back"
+        gcs.bind(("127.0.0.1", port))
+        gcs.settimeout(2.0)
+        link.write(b"second")
+        assert gcs.recv(64) == b"second"
+        assert (link.stats.written, link.stats.dropped) == (2, 0)
+    finally:
+        gcs.close()
+        link.close()
+
+
 @pytest.mark.parametrize("reset", [False, True], ids=["closed", "reset"])
 def test_a_tcp_gcs_that_goes_away_and_comes_back(capfd, reset):
     """pymavlink printed a line per frame once the GCS had gone (stdout, not the node's log) and
@@ -329,6 +360,30 @@ def test_a_tcp_gcs_that_does_not_answer_never_blocks_the_tick():
     flight.assert_landing_went_on()
     error = bridge.link_stats.last_error  # our connect timeout, or the kernel's (TCP_USER_TIMEOUT_MS), first
     assert bridge.link_stats.failures >= 1 and ("no answer" in error or "timed out" in error)
+
+
+def test_a_tcp_connection_left_unanswered_is_given_up_after_the_connect_timeout(monkeypatch, monotonic):
+    """And tried again at once: the reopen was due REOPEN_PERIOD_S after the first try."""
+    attempts = []
+
+    def connect(self):
+        attempts.append(monotonic.now)
+        return socket.socket(socket.AF_INET, socket.SOCK_STREAM), True  # still connecting
+
+    monkeypatch.setattr(link_module.TcpLink, "_connect", connect)
+    monkeypatch.setattr(link_module, "_writable", lambda handle, wait_s: False)  # nothing ever answers
+    first_try = monotonic.now
+    link = link_module.open_transport(f"tcp:127.0.0.1:{free_port()}")
+    assert attempts == [first_try] and not link.stats.up
+    monotonic.now += link_module.CONNECT_TIMEOUT_S - 0.01
+    link.poll()
+    assert link.stats.failures == 0
+    monotonic.now += 0.02
+    link.poll()
+    assert link.stats.failures == 1 and "no answer" in link.stats.last_error
+    link.poll()
+    assert attempts == [first_try, monotonic.now]
+    link.close()
 
 
 def flood(sender, seconds=10.0):
@@ -410,6 +465,23 @@ def test_a_serial_radio_unplugged_and_plugged_back(tmp_path):
     assert_announced_once(radio.messages())
     stats = bridge.link_stats
     assert stats.failures >= 1 and stats.dropped > 0 and stats.restored == 1 and stats.up
+
+
+def test_a_missing_serial_device_is_tried_again_once_per_reopen_period(tmp_path, monotonic):
+    first_try = monotonic.now
+    link = link_module.open_transport(str(tmp_path / "ttyUSB_absent"))
+    assert link.stats.failures == 1 and not link.stats.up
+    for _ in range(10):  # ticks within the period: no new try
+        link.poll()
+        link.write(b"frame")
+        monotonic.now += link_module.REOPEN_PERIOD_S / 20
+    assert link.stats.failures == 1 and link.stats.dropped == 10
+    monotonic.now = first_try + link_module.REOPEN_PERIOD_S
+    link.poll()
+    assert link.stats.failures == 2
+    link.poll()
+    assert link.stats.failures == 2
+    link.close()
 
 
 def test_a_serial_radio_that_stops_draining_never_blocks_the_tick(tmp_path):
@@ -547,14 +619,12 @@ def test_a_tcp_link_gives_up_on_a_gcs_that_stops_acknowledging():
         gcs.go_away()
 
 
-def test_udpout_does_not_flap_when_the_host_rate_limits_its_port_unreachable(monkeypatch):
+def test_udpout_does_not_flap_when_the_host_rate_limits_its_port_unreachable(monotonic):
     """Linux answers at most about one "port unreachable" a second to a remote sender (not on
     loopback). At 10 ticks a second most polls saw none, so the link went up and down every
     second, logging each change and re-sending the heartbeat and the stage each time."""
     port = free_port(socket.SOCK_DGRAM)
     link = link_module.open_transport(f"udpout:127.0.0.1:{port}")
-    now = [1000.0]
-    monkeypatch.setattr(link_module.time, "monotonic", lambda: now[0])
     real_recv, tick = link._sock.recv, [0]
 
     class RateLimited:  # the kernel's answer kept to one a second, as from a remote host
@@ -578,7 +648,7 @@ def test_udpout_does_not_flap_when_the_host_rate_limits_its_port_unreachable(mon
         time.sleep(0.005)  # the loopback's answer
         link.poll()
         states.append(link.stats.up)
-        now[0] += 0.1
+        monotonic.now += 0.1
     link.close()
     assert not any(states[10:]) and "nobody listens" in link.stats.last_error
 

@@ -5,19 +5,26 @@ are compared with the float64 truth within 1e-6 plus one float32 step of the val
 """
 
 import dataclasses
+import hashlib
 import math
+import struct
 import time
 
 import numpy as np
 import pytest
+from pymavlink.dialects.v20 import common as mav2
 from scipy.spatial.transform import Rotation
 from test_gcs_landing import CONFIG, COV, on_axis
 from test_gcs_frames import camera_pose_from_truth
+from test_gcs_link import parse
+from test_gcs_signing import UNIX_2015
 
 from uav_landing_vision.gcs import GcsBridge
 from uav_landing_vision.gcs.bridge import TRACKER_TRACKING
-from uav_landing_vision.gcs.frames import DeckGeometry, camera_to_landing, euler_covariance
-from uav_landing_vision.gcs.mavlink import covariance_upper_triangle, load_signing_key, open_link
+from uav_landing_vision.gcs.frames import DeckGeometry, LandingPose, camera_to_landing, euler_covariance
+from uav_landing_vision.gcs.mavlink import (
+    MavlinkSender, covariance_upper_triangle, encode_pose, load_signing_key, open_link,
+)
 
 KEY = bytes(range(32))
 ALL_MESSAGES = ("ODOMETRY", "ATT_POS_MOCAP", "VISION_POSITION_ESTIMATE", "LANDING_TARGET")
@@ -57,11 +64,15 @@ def collect(conn, until, timeout=3.0):
     return got
 
 
-def make_bridge(port, messages=ALL_MESSAGES, key_file="", frame="LOCAL_FRD"):
-    mav = dataclasses.replace(
-        CONFIG.mavlink, connection=f"udpout:127.0.0.1:{port}", messages=messages,
-        signing_key_file=str(key_file), odometry_frame=frame, system_id=42, component_id=197,
+def mavlink_config(port, **changes):
+    """The station's MAVLink settings, sending to a receiver on ``port``."""
+    return dataclasses.replace(
+        CONFIG.mavlink, connection=f"udpout:127.0.0.1:{port}", system_id=42, component_id=197, **changes
     )
+
+
+def make_bridge(port, messages=ALL_MESSAGES, key_file="", frame="LOCAL_FRD"):
+    mav = mavlink_config(port, messages=messages, signing_key_file=str(key_file), odometry_frame=frame)
     return GcsBridge(dataclasses.replace(CONFIG, mavlink=mav))
 
 
@@ -134,7 +145,8 @@ def test_scripted_approach_decodes_to_the_truth(receiver):
     texts = [m.text for m in got["STATUSTEXT"]]
     assert texts[0].startswith("VISION APPROACH")
     hb = got["HEARTBEAT"][0]
-    assert hb.get_srcSystem() == 42 and hb.get_srcComponent() == 197 and hb.type == 18  # ONBOARD_CONTROLLER
+    assert hb.get_srcSystem() == 42 and hb.get_srcComponent() == 197
+    assert (hb.type, hb.autopilot) == (18, 8)  # ONBOARD_CONTROLLER, AUTOPILOT_INVALID: not a vehicle to a GCS
     assert hb.get_msgbuf()[0] == 0xFD  # MAVLink 2 framing
     assert not hb.get_signed()
 
@@ -156,6 +168,40 @@ def test_covariance_triangle_layout():
     cov = np.arange(36, dtype=float).reshape(6, 6)
     tri = covariance_upper_triangle(cov)
     assert len(tri) == 21 and tri[:6] == list(cov[0]) and tri[6:11] == list(cov[1, 1:]) and tri[20] == cov[5, 5]
+
+
+def rpy_covariance_by_finite_differences(quat_xyzw, cov6):
+    """Oracle (scipy's Z-Y-X angles): Σ of (x, y, z, roll, pitch, yaw) for a rotation error about the parent's axes."""
+    base = Rotation.from_quat(quat_xyzw)
+    h = 1e-6
+    jac = np.eye(6)
+    for k in range(3):
+        d = np.zeros(3)
+        d[k] = h
+        plus = (Rotation.from_rotvec(d) * base).as_euler("ZYX")[::-1]
+        minus = (Rotation.from_rotvec(-d) * base).as_euler("ZYX")[::-1]
+        jac[3:, 3 + k] = (plus - minus) / (2 * h)
+    return jac @ cov6 @ jac.T
+
+
+def test_every_position_message_carries_all_21_covariance_entries():
+    """ODOMETRY.pose_covariance, ATT_POS_MOCAP.covariance and VISION_POSITION_ESTIMATE.covariance:
+    (x, y, z, roll, pitch, yaw), the first row, then the second from its diagonal, and so on."""
+    rng = np.random.default_rng(20240611)
+    for _ in range(5):
+        a = rng.normal(size=(6, 6)) * np.array([0.3, 0.3, 1.0, 0.02, 0.02, 0.02])
+        cov = a @ a.T + np.diag([0.01, 0.02, 0.03, 1e-4, 2e-4, 3e-4])
+        rpy = rng.uniform([-0.6, -0.8, -np.pi], [0.6, 0.8, np.pi])
+        quat = Rotation.from_euler("ZYX", rpy[::-1]).as_quat()
+        mav = mav2.MAVLink(None, srcSystem=1, srcComponent=197)
+        msgs = encode_pose(mav, ALL_MESSAGES, LandingPose(rng.normal(0.0, 30.0, 3), quat, cov), 12.5, "LOCAL_FRD")
+        by_type = {m.get_type(): m for m in parse(b"".join(msg.pack(mav) for msg in msgs))}
+        sigma = rpy_covariance_by_finite_differences(quat, cov)
+        expected = [sigma[i, j] for i in range(6) for j in range(i, 6)]
+        for name, field in (("ODOMETRY", "pose_covariance"), ("ATT_POS_MOCAP", "covariance"),
+                            ("VISION_POSITION_ESTIMATE", "covariance")):
+            got = np.array(getattr(by_type[name], field), dtype=float)
+            np.testing.assert_allclose(got, expected, rtol=2e-5, atol=1e-9, err_msg=name)
 
 
 @pytest.fixture
@@ -188,6 +234,28 @@ def test_signed_stream_rejected_with_a_wrong_key(receiver, key_file):
     assert conn.mav.signing.sig_count == conn.mav.signing.badsig_count == 3  # signed, and rejected
 
 
+def signature_block(frame: bytes):
+    """(link id, timestamp) of a signed MAVLink 2 frame, and whether its 6-byte signature is
+    SHA-256(key + everything before the signature) for ``KEY``."""
+    assert frame[0] == 0xFD and frame[2] & 0x01  # MAVLink 2, MAVLINK_IFLAG_SIGNED
+    low, high = struct.unpack("<IH", frame[-12:-6])  # 48-bit little-endian
+    return frame[-13], low + (high << 32), hashlib.sha256(KEY + frame[:-6]).digest()[:6] == frame[-6:]
+
+
+def test_signed_frames_carry_the_configured_link_id_and_the_clock_stamp(receiver, key_file):
+    """The signature block checked by hand: 10 µs units since 2015-01-01 UTC, one more per frame."""
+    conn, port = receiver(KEY)
+    now = float(int(time.time()))  # a whole second: its stamp is exact
+    sender = MavlinkSender(mavlink_config(port, signing_key_file=str(key_file), signing_link_id=7), clock=lambda: now)
+    sender.send_heartbeat()
+    sender.send_heartbeat()
+    got = collect(conn, lambda g: len(g.get("HEARTBEAT", [])) == 2)
+    sender.close()
+    stamp = round((now - UNIX_2015) * 100_000)
+    assert [signature_block(m.get_msgbuf()) for m in got["HEARTBEAT"]] == [(7, stamp, True), (7, stamp + 1, True)]
+    assert conn.mav.signing.goodsig_count == 2 and conn.mav.signing.badsig_count == 0
+
+
 @pytest.mark.parametrize("text", ["00ff", "zz" * 32, KEY.hex() + "00"])
 def test_bad_key_files(tmp_path, text):
     path = tmp_path / "k"
@@ -199,12 +267,19 @@ def test_bad_key_files(tmp_path, text):
 @pytest.mark.parametrize("frame, frame_id", [("LOCAL_FRD", 20), ("LOCAL_NED", 1), ("MOCAP_NED", 14)])
 def test_odometry_carries_the_configured_frame_and_the_stamp_to_the_microsecond(frame, frame_id):
     """MAV_FRAME ids from MAVLink's common.xml; 1.001 s is not exact in binary (cut, not rounded, it is 1000999 µs)."""
-    from pymavlink.dialects.v20 import common as mav2
-
-    from uav_landing_vision.gcs.frames import LandingPose
-    from uav_landing_vision.gcs.mavlink import encode_pose
-
     mav = mav2.MAVLink(None, srcSystem=1, srcComponent=197)
     pose = LandingPose(np.array([-30.0, 1.0, -3.0]), np.array([0.0, 0.0, 0.0, 1.0]), np.eye(6) * 1e-3)
     (msg,) = encode_pose(mav, ("ODOMETRY",), pose, 1.001, frame)
     assert msg.frame_id == frame_id and msg.time_usec == 1_001_000
+
+
+@pytest.mark.parametrize("length", [49, 50, 70])
+def test_status_text_keeps_up_to_the_50_characters_statustext_holds(receiver, length):
+    conn, port = receiver()
+    text = "".join(chr(ord("A") + k % 26) for k in range(length))
+    sender = MavlinkSender(mavlink_config(port))
+    sender.send_statustext(text, mav2.MAV_SEVERITY_WARNING)
+    got = collect(conn, lambda g: "STATUSTEXT" in g)
+    sender.close()
+    (msg,) = got["STATUSTEXT"]
+    assert msg.text == text[:50] and msg.severity == mav2.MAV_SEVERITY_WARNING

@@ -10,18 +10,24 @@ import os
 import socket
 import threading
 import time
+import types
+from datetime import datetime, timezone
 
 import pytest
+from pymavlink import mavutil
+from pymavlink.dialects.v20 import common as mav2
 from test_gcs_landing import CONFIG
 from test_gcs_link import free_port
 
 from uav_landing_vision.gcs.mavlink import MavlinkSender, open_link
 from uav_landing_vision.gcs import signing
 from uav_landing_vision.gcs.signing import (
-    LAST_TIMESTAMP, RENEW_S, RESERVE_S, UNITS_PER_S, SigningTimestamps, clock_timestamp,
+    LAST_TIMESTAMP, RENEW_S, RESERVE_S, RETRY_S, UNITS_PER_S, SigningTimestamps, clock_timestamp,
 )
 
 KEY = bytes(range(32))
+RESERVE = int(RESERVE_S * UNITS_PER_S)  # in stamp units
+UNIX_2015 = datetime(2015, 1, 1, tzinfo=timezone.utc).timestamp()
 
 
 class Clock:
@@ -30,6 +36,14 @@ class Clock:
 
     def __call__(self):
         return self.now
+
+
+@pytest.fixture
+def monotonic(monkeypatch):
+    """``signing``'s monotonic time, a ``Clock`` that stands still until the test moves it."""
+    clock = Clock()
+    monkeypatch.setattr(signing, "time", types.SimpleNamespace(monotonic=clock))
+    return clock
 
 
 @pytest.fixture
@@ -123,7 +137,18 @@ def test_the_default_state_file_is_beside_the_key(gcs, key_file):
     sender = station(conn, key_file, Clock())
     sender.close()
     stored = int((key_file.parent / "signing.key.timestamp").read_text())
-    assert stored == sender._stamps.start + int(RESERVE_S * UNITS_PER_S)
+    assert stored == sender._stamps.start + RESERVE
+
+
+def test_signing_timestamps_count_10_microsecond_units_from_2015_utc(monkeypatch):
+    """As ``datetime`` counts them, and as pymavlink's own ``setup_signing`` stamps at the same time."""
+    assert clock_timestamp(UNIX_2015) == 0 and clock_timestamp(UNIX_2015 + 1.0) == 100_000
+    t = datetime(2025, 3, 4, 5, 6, 7, 890000, tzinfo=timezone.utc).timestamp()
+    assert clock_timestamp(t) == round((t - UNIX_2015) * 100_000)
+    monkeypatch.setattr(mavutil, "time", types.SimpleNamespace(time=lambda: t))
+    gcs = types.SimpleNamespace(mav=mav2.MAVLink(None))
+    mavutil.mavfile.setup_signing(gcs, KEY, link_id=0)
+    assert clock_timestamp(t) == gcs.mav.signing.timestamp
 
 
 def test_stamps_follow_the_clock_and_never_go_back(tmp_path):
@@ -152,9 +177,8 @@ def test_the_reservation_is_renewed_ahead_by_a_thread_of_its_own(tmp_path, monke
     path = tmp_path / "t"
     clock = Clock()
     stamps = SigningTimestamps(path, clock)
-    reserve = int(RESERVE_S * UNITS_PER_S)
     first = int(path.read_text())
-    assert first == stamps.start + reserve
+    assert first == stamps.start + RESERVE
     assert [name for name, _ in flushed] == [str(path) + ".tmp", str(tmp_path)]  # the file, then its rename
     flushed.clear()
     clock.now += RESERVE_S - RENEW_S - 1.0
@@ -163,10 +187,38 @@ def test_the_reservation_is_renewed_ahead_by_a_thread_of_its_own(tmp_path, monke
     clock.now += 2.0
     now = stamps.advance(0)
     stamps.close()
-    assert int(path.read_text()) == now + reserve
+    assert int(path.read_text()) == now + RESERVE
     assert flushed and not any(main for _, main in flushed)  # by the writer, not in the tick
-    assert SigningTimestamps(path, lambda: clock.now - 7200.0).start == now + reserve  # a restart starts above it
+    assert SigningTimestamps(path, lambda: clock.now - 7200.0).start == now + RESERVE  # a restart starts above it
     assert SigningTimestamps(path, lambda: clock.now + 7200.0).start == clock_timestamp(clock.now + 7200.0)
+
+
+def count_writes(stamps):
+    """The values ``stamps`` tries to write from now on, in order."""
+    calls, real = [], stamps._write
+
+    def write(value):
+        calls.append(value)
+        return real(value)
+
+    stamps._write = write
+    return calls
+
+
+def test_a_reservation_written_in_the_tick_runs_a_full_reserve_ahead_and_then_lasts(tmp_path):
+    """Stamps that reach the stored reservation (the clock jumped ahead past it) make the tick write
+    the next one RESERVE_S ahead of them, so the frames after it need no write for a while."""
+    path = tmp_path / "t"
+    clock = Clock()
+    stamps = SigningTimestamps(path, clock)
+    clock.now += RESERVE_S + 5.0
+    stamp = stamps.advance(0)
+    assert int(path.read_text()) == stamp + RESERVE
+    writes = count_writes(stamps)
+    for k in range(1, 2000):  # frames signed at the rising stamps, the clock standing still
+        assert stamps.advance(stamp + k) == stamp + k
+    assert writes == []
+    stamps.close()
 
 
 def test_no_frame_is_signed_at_the_stored_reservation_before_a_new_one_is_on_disk(tmp_path, monkeypatch):
@@ -215,21 +267,29 @@ def test_a_state_file_out_of_reach_stops_the_start(tmp_path, where, why):
         SigningTimestamps(tmp_path / where)
 
 
-def test_a_failed_store_later_is_reported_and_signing_goes_on(tmp_path, monkeypatch):
-    monkeypatch.setattr(signing, "RETRY_S", 0.0)
+def test_a_failed_store_later_is_reported_and_tried_again_at_most_once_every_retry_period(tmp_path, monotonic):
+    """Signing goes on meanwhile, its stamps rising frame by frame."""
     path = tmp_path / "state" / "t"
     path.parent.mkdir()
     clock = Clock()
     stamps = SigningTimestamps(path, clock)
     path.unlink()
     path.parent.rmdir()  # the directory is gone: the next write fails
-    clock.now += 61.0
-    assert stamps.advance(0) == clock_timestamp(clock.now)
-    assert "cannot write it" in stamps.store_error
+    writes = count_writes(stamps)
+    clock.now += RESERVE_S + 1.0  # past the reservation: the tick must write
+    current = stamps.advance(0)
+    assert len(writes) == 1 and "cannot write it" in stamps.store_error
+    for _ in range(50):  # frames within RETRY_S of the failure: no new try
+        current = stamps.advance(current + 1)
+        monotonic.now += RETRY_S / 100
+    assert len(writes) == 1 and current == clock_timestamp(clock.now) + 50
+    monotonic.now += RETRY_S
+    stamps.advance(current + 1)
+    assert len(writes) == 2
     path.parent.mkdir()
-    clock.now += 1.0
-    stamps.advance(0)
-    assert stamps.store_error == "" and path.exists()
+    monotonic.now += RETRY_S + 0.01
+    stamps.advance(current + 2)
+    assert len(writes) == 3 and stamps.store_error == "" and int(path.read_text()) >= current + 2 + RESERVE
     stamps.close()
 
 
@@ -252,7 +312,7 @@ def test_a_station_whose_clock_is_behind_the_gcs_is_accepted_once_it_hears_the_g
     sender = station(conn, key_file, clock)
     assert heartbeats_taken(conn, sender) == 0  # a new stream 10 minutes behind the GCS: refused
     assert gcs_heartbeat_heard(conn, sender)
-    assert sender.mav.signing.timestamp >= clock_timestamp(clock.now + 600.0)
+    assert clock_timestamp(clock.now + 600.0) <= sender.mav.signing.timestamp < clock_timestamp(clock.now + 601.0)
     assert heartbeats_taken(conn, sender) == 3
     sender.close()
 
