@@ -345,5 +345,7 @@ class _ZeroRandom:
 
 @pytest.mark.parametrize("name", ["multinomial", "stratified", "systematic"])
 def test_a_uniform_of_zero_never_draws_a_zero_weight_particle(name):
-    """The CDF is inverted at u in (0, 1]: u = 0 would fall on particle 0 of weight 0."""
+    """The CDF is inverted at u in (0, 1]: u = 0 would fall on particle 0 of weight 0, and u = 1
+    past a cumulative sum that rounds below 1 (ten weights of 0.1) on a trailing zero weight."""
     np.testing.assert_array_equal(resample(name, [0.0, 1.0], _ZeroRandom()).indices, [1, 1])
+    assert resample(name, [0.1] * 10 + [0.0], _ZeroRandom()).indices.max() == 9

@@ -56,8 +56,8 @@ def _floor_copies(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _invert_cdf(w: np.ndarray, u: np.ndarray) -> np.ndarray:
     """Index m with ``Σ_{n<m} w_n < u ≤ Σ_{n≤m} w_n`` for each ``u`` in (0, 1] (App. B.1)."""
     cdf = np.cumsum(w)
-    cdf[-1] = 1.0  # round-off must not push u past the last particle
-    return np.minimum(np.searchsorted(cdf, u, side="left"), len(w) - 1)
+    cdf[np.flatnonzero(w)[-1]:] = 1.0  # round-off must not push u past the last particle of weight > 0
+    return np.searchsorted(cdf, u, side="left")
 
 
 def _open_closed(rng, size) -> np.ndarray:
