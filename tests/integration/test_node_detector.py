@@ -279,6 +279,16 @@ def test_a_pose_older_than_the_image_within_the_max_age_sets_the_search_window(m
     assert net.windows == [expected_window()] and node.counters["windowed"] == 1
 
 
+def test_a_pose_exactly_the_max_age_old_sets_the_search_window_and_one_a_nanosecond_older_does_not(make_node):
+    """Compared in integer ns: 0.3 s as ``ns * 1e-9`` is 0.30000000000000004, past a limit of 0.3."""
+    node, net = make_node(Parameter("node.search_window", value=True), Parameter("node.window_max_age_s", value=0.3))
+    calibrate(node)
+    node._on_pose(pose_msg(5))
+    node._on_image(image_msg(rgb_frame(CAMERA), "rgb8", sec=5, nanosec=300_000_000))
+    node._on_image(image_msg(rgb_frame(CAMERA), "rgb8", sec=5, nanosec=300_000_001))
+    assert net.windows == [expected_window(), None]
+
+
 def test_a_pose_newer_than_the_image_is_not_used_for_the_search_window(make_node):
     node, net = make_node(Parameter("node.search_window", value=True))
     calibrate(node)

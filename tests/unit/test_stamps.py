@@ -6,7 +6,7 @@ import pytest
 from builtin_interfaces.msg import Time
 from rclpy.time import Time as RclpyTime
 
-from uav_landing_vision.stamps import header_stamp_ns, stamp_fields, stamp_ns
+from uav_landing_vision.stamps import header_stamp_ns, stamp_fields, stamp_ns, within_age
 
 
 @pytest.mark.parametrize("ns", [0, 1, 999_999_999, 1_000_000_000, 1_700_000_000_123_456_789])
@@ -26,3 +26,10 @@ def test_a_stamp_with_nanosec_from_one_second_on_is_malformed():
 def test_a_message_without_a_header_has_no_stamp():
     assert header_stamp_ns(SimpleNamespace(data=b"")) is None
     assert header_stamp_ns(SimpleNamespace(header=SimpleNamespace(stamp=Time(sec=2, nanosec=5)))) == 2_000_000_005
+
+
+@pytest.mark.parametrize("limit_s", [0.1, 0.3, 0.5, 0.7, 2.5])
+def test_an_age_is_within_a_limit_up_to_the_nanosecond(limit_s):
+    limit_ns = round(limit_s * 1e9)
+    assert within_age(0, limit_s) and within_age(limit_ns, limit_s)
+    assert not within_age(limit_ns + 1, limit_s) and not within_age(-1, limit_s)

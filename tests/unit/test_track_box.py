@@ -48,10 +48,11 @@ def test_nothing_when_off_without_a_pose_or_out_of_view():
     assert behind.roi(CAMERA, FRAME_NS) is None
 
 
-def test_the_pose_must_be_recent_and_not_newer_than_the_frame():
-    box = track_box(max_age_s=0.5)
-    assert box.roi(CAMERA, 500_000_000) is not None
-    assert box.roi(CAMERA, 500_000_001) is None
+@pytest.mark.parametrize("max_age_ns", [300_000_000, 500_000_000, 700_000_000])  # 0.3e9 * 1e-9 > 0.3
+def test_the_pose_must_be_recent_and_not_newer_than_the_frame(max_age_ns):
+    box = track_box(max_age_s=max_age_ns / 1e9)
+    assert box.roi(CAMERA, max_age_ns) is not None
+    assert box.roi(CAMERA, max_age_ns + 1) is None
     box.set_pose(2 * FRAME_NS, POSITION, QUAT)
     assert box.roi(CAMERA, FRAME_NS) is None
 

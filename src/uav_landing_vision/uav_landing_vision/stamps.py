@@ -19,6 +19,12 @@ def stamp_fields(ns: int) -> tuple[int, int]:
     return divmod(int(ns), NANOSECONDS_PER_SECOND)
 
 
+def within_age(age_ns: int, max_age_s: float) -> bool:
+    """Whether ``age_ns`` (a later stamp minus an earlier one) is in 0..``max_age_s``, compared in
+    integer ns: as ``age_ns * 1e-9`` a pose exactly 0.3 s old would be 0.30000000000000004 s."""
+    return 0 <= age_ns <= round(max_age_s * NANOSECONDS_PER_SECOND)
+
+
 def header_stamp_ns(msg) -> int | None:
     """:func:`stamp_ns` of ``msg.header.stamp``; None for a message without a header."""
     stamp = getattr(getattr(msg, "header", None), "stamp", None)

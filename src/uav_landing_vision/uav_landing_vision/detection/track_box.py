@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..render.boxes import projected_roi
+from ..stamps import within_age
 
 
 @dataclass(frozen=True)
@@ -68,7 +69,7 @@ class TrackBox:
         if not self.config.enabled or self._pose is None or self._run >= self.config.max_frames:
             return None
         pose_stamp, position, quat = self._pose
-        if not 0.0 <= (int(stamp_ns) - pose_stamp) * 1e-9 <= self.config.max_age_s:
+        if not within_age(int(stamp_ns) - pose_stamp, self.config.max_age_s):
             return None
         roi = projected_roi(camera, self._vertices, quat, position)
         if roi is None:

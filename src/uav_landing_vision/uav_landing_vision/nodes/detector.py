@@ -29,7 +29,7 @@ from ..detection.detector import Detector, DetectorConfig, search_window
 from ..detection.track_box import TrackBox, TrackBoxConfig
 from ..model import fixed_wing_mesh
 from ..render.boxes import projected_roi
-from ..stamps import stamp_ns
+from ..stamps import stamp_ns, within_age
 from .base import LandingNode, run_node
 from .calibration import Calibration
 from .image import ImageError, image_to_rgb
@@ -96,8 +96,7 @@ class DetectorNode(LandingNode):
         camera, pose = self._camera(width, height), self._pose
         if camera is None or pose is None:
             return None
-        age_s = (image_stamp_ns - pose[0]) * 1e-9
-        if not 0.0 <= age_s <= self.node_config.window_max_age_s:
+        if not within_age(image_stamp_ns - pose[0], self.node_config.window_max_age_s):
             return None
         roi = projected_roi(camera, self._vertices, pose[2], pose[1])
         if roi is None:
