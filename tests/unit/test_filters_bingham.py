@@ -26,8 +26,10 @@ def direct_integration(z):
     """F and ∂F/∂z_i by integrating over the tangent ball of the upper hemisphere.
 
     ``q = (ρn, √(1−ρ²))``, ``dS = ρ² dρ dn / √(1−ρ²)``; the radial integrals are closed-form
-    (``ρ = sin θ``): ``∫ e^{−aρ²} sin²θ dθ`` and ``∫ e^{−aρ²} sin⁴θ dθ`` in scaled Bessel
-    functions; the direction ``n ∈ S²`` is integrated numerically over one octant.
+    (``ρ = sin θ``): ``∫ e^{−aρ²} sin²θ dθ`` and ``∫ e^{−aρ²} sin⁴θ dθ`` in Bessel functions
+    ``e^{−b} I_ν(b) = ive(ν, b) e^{|b| − b}``, ``b = a/2`` (the factor is 1 unless a positive ``z_i``,
+    as in the table's padding, makes ``a`` negative); the direction ``n ∈ S²`` is integrated
+    numerically over one octant.
     """
     t, wt = _graded_nodes()
     th, ph = np.meshgrid(t, t, indexing="ij")
@@ -35,8 +37,9 @@ def direct_integration(z):
     n = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], -1)
     a = n**2 @ (-np.asarray(z, float))
     b = a / 2
-    r1 = np.pi / 4 * (ive(0, b) - ive(1, b))
-    r2 = np.pi / 8 * (1.5 * ive(0, b) - 2 * ive(1, b) + 0.5 * ive(2, b))
+    scale = np.exp(np.abs(b) - b)
+    r1 = np.pi / 4 * (ive(0, b) - ive(1, b)) * scale
+    r2 = np.pi / 8 * (1.5 * ive(0, b) - 2 * ive(1, b) + 0.5 * ive(2, b)) * scale
     f = 16 * np.sum(wgt * r1)  # 2 hemispheres × 8 octants
     df = np.array([16 * np.sum(wgt * n[..., i] ** 2 * r2) for i in range(3)])
     return f, np.r_[df, f - df.sum()]
@@ -217,6 +220,84 @@ def test_lookups_outside_the_table_are_errors():
         bingham.normaliser(np.array([-1.0, -2.0, 0.5]))
     with pytest.raises(ValueError):
         bingham.moments(np.array([-2e5, -1.0, -1.0]))
+
+
+def test_quadrature_at_zero_is_the_area_of_s3_and_every_moment_a_quarter():
+    f, m = bingham_table.normaliser_and_moments(np.zeros((1, 3)))
+    assert f[0] == pytest.approx(2.0 * np.pi**2, rel=1e-12)
+    np.testing.assert_allclose(m[0], 0.25, rtol=1e-12)
+
+
+def _two_equal(a):
+    """Z = diag(a, a, 0, 0): x1² + x2² is uniform on [0, 1] over S³, so F = 2π²(e^a − 1)/a and
+    E[x1²] = E[x2²] = E[u]/2, E[x3²] = (1 − E[u])/2 with E[u] = e^a/(e^a − 1) − 1/a."""
+    f = 2.0 * np.pi**2 * np.expm1(a) / a
+    mean_u = np.exp(a) / np.expm1(a) - 1.0 / a
+    return f, np.array([mean_u / 2, mean_u / 2, (1.0 - mean_u) / 2])
+
+
+@pytest.mark.parametrize("a", [-0.5, -40.0, -1.0e3, -3.0e4, -1.0e5, 0.3])
+def test_quadrature_in_closed_form_with_two_equal_concentrations(a):
+    """Every placement of the zero among (z1, z2, z3), from the padding's small positive values to
+    the table's largest |z|."""
+    f_ref, m_ref = _two_equal(a)
+    for zero in range(3):
+        z = np.full(3, a)
+        z[zero] = 0.0
+        f, m = bingham_table.normaliser_and_moments(z[None])
+        assert f[0] == pytest.approx(f_ref, rel=1e-9)
+        np.testing.assert_allclose(m[0], np.where(np.arange(3) == zero, m_ref[2], m_ref[0]), rtol=1e-9)
+
+
+QUADRATURE_Z = [(-5.0, -20.0, -1.0), (-20.0, -5.0, -1.0), (-30.0, -30.0, -2.0), (-1.0, -8.0, -40.0),
+                (-12.0, 0.0, 0.0), (0.0, 0.0, -25.0), (-7.0, -3.0, -900.0), (-2500.0, -60.0, -0.5),
+                (-1e5, -2e4, -5e4), (-3e3, -1e5, -8e3), (-6e4, -6e4, -1e3),
+                (-3.0, -0.5, 0.4), (0.3, -2.0, -7.0), (-12.0, 0.3, 0.2)]
+
+
+@pytest.mark.parametrize("z", QUADRATURE_Z)
+def test_quadrature_matches_direct_integration_from_the_padding_to_the_largest_concentrations(z):
+    """The table's one-dimensional Hopf quadrature against the tangent-ball integration, both
+    orderings of z1 and z2, small positive (padding) values and |z| up to 1e5 included."""
+    f_ref, df_ref = direct_integration(z)
+    f, m = bingham_table.normaliser_and_moments(np.array([z]))
+    assert f[0] == pytest.approx(f_ref, rel=1e-8)
+    np.testing.assert_allclose(m[0], df_ref[:3] / f_ref, rtol=1e-7)
+
+
+@pytest.fixture(scope="module")
+def small_table():
+    return bingham_table.build(grid_size=8, z_max=50.0)
+
+
+def test_table_axis_spans_zero_to_log1p_z_max_in_equal_steps_with_padding(small_table):
+    v = small_table["v"]
+    pad = bingham_table.PAD
+    assert len(v) == 8 + 2 * pad
+    assert v[pad] == 0.0
+    assert v[pad + 7] == pytest.approx(np.log1p(50.0), rel=1e-12)
+    np.testing.assert_allclose(np.diff(v), np.log1p(50.0) / 7, rtol=1e-12)
+    assert float(small_table["z_max"]) == 50.0
+
+
+def test_every_table_cell_holds_the_quadrature_at_its_own_concentrations(small_table):
+    """Cell (i, j, k) holds log F and log of the moments at z = −(e^{v} − 1) of its three axis
+    values, in that order: diagonal cells, padding and all orderings of a triple included, and the
+    table is symmetric under any swap of two axes."""
+    v, log_f, log_m = small_table["v"], small_table["log_f"], small_table["log_m"]
+    n = len(v)
+    assert np.all(np.isfinite(log_f)) and np.all(np.isfinite(log_m))
+    np.testing.assert_array_equal(log_f, log_f.transpose(1, 0, 2))
+    np.testing.assert_array_equal(log_f, log_f.transpose(0, 2, 1))
+    np.testing.assert_allclose(log_m[..., 0], log_m.transpose(1, 0, 2, 3)[..., 1], rtol=1e-12)
+    np.testing.assert_allclose(log_m[..., 2], log_m.transpose(2, 1, 0, 3)[..., 0], rtol=1e-12)
+    cells = np.random.default_rng(0).integers(0, n, (300, 3))
+    cells = np.concatenate([cells, [[3, 3, 3], [0, 0, n - 1], [n - 1, 5, 5], [2, 9, 2]],
+                            [[9, 2, 14], [14, 9, 2], [2, 14, 9], [9, 14, 2]]])
+    f, m = bingham_table.normaliser_and_moments(-np.expm1(v[cells]))
+    i, j, k = cells.T
+    np.testing.assert_allclose(log_f[i, j, k], np.log(f), rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(log_m[i, j, k], np.log(m), rtol=1e-10, atol=1e-12)
 
 
 def test_table_command_builds_a_table_that_matches_the_quadrature(tmp_path):

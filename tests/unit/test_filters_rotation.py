@@ -180,10 +180,22 @@ def test_invalid_configuration_is_an_error(change):
         dataclasses.replace(MotionFilterConfig(), **change)
 
 
-@pytest.mark.parametrize("change", [{"steps": 5, "warm_up": 5}, {"flip_prob": 0.6, "outlier_prob": 0.5}, {"outlier_deg": (90.0, 30.0)}])
+@pytest.mark.parametrize(
+    "change",
+    [{"steps": 5, "warm_up": 5}, {"warm_up": -1}, {"runs": 0}, {"flip_prob": 0.6, "outlier_prob": 0.5},
+     {"outlier_prob": 0.6, "flip_prob": 0.4}, {"outlier_prob": -0.01}, {"outlier_deg": (90.0, 30.0)},
+     {"outlier_deg": (-1.0, 30.0)}, {"outlier_deg": (30.0, 181.0)}],
+)
 def test_invalid_scenario_is_an_error(change):
     with pytest.raises(ValueError):
         dataclasses.replace(Scenario(), **change)
+
+
+def test_scenario_accepts_values_at_its_inclusive_bounds():
+    """``warm_up`` up to ``steps − 1``, outlier angles over all of [0°, 180°] and outlier plus flip
+    probabilities up to (not including) 1."""
+    Scenario(runs=1, steps=5, warm_up=4)
+    Scenario(outlier_deg=(0.0, 180.0), outlier_prob=0.5, flip_prob=0.49)
 
 
 def test_filters_under_heavy_tailed_noise_and_their_consistency():

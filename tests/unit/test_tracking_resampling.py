@@ -279,6 +279,15 @@ def test_residual_draws_a_single_residual_copy():
         assert len(resample("residual", [0.4, 0.4, 0.2], np.random.default_rng(seed)).indices) == 3
 
 
+def test_residual_draws_its_remainder_independently_so_a_particle_can_get_two_extra_copies():
+    """M·w = (1.2, 1.2, 0.8, 0.8): one copy each for the first two, then R = 2 multinomial draws
+    with probabilities (0.1, 0.1, 0.4, 0.4) from the residuals; both land on particle 2 with
+    probability 0.16, which one point in each half of the residual CDF never gives."""
+    counts = copy_counts("residual", np.array([0.3, 0.3, 0.2, 0.2]), reps=400)
+    assert np.all(counts[:, :2] >= 1) and np.all(counts.sum(axis=1) == 4)
+    assert 0.10 < np.mean(counts[:, 2] == 2) < 0.23
+
+
 def test_metropolis_needs_at_least_one_step():
     """Zero steps would return every particle once: no resampling at all."""
     with pytest.raises(ValueError, match="steps must be at least 1"):
@@ -315,6 +324,29 @@ def test_fixed_size_fills_with_equally_spaced_points():
         assert extra.sum() == 4 and np.all((extra >= [1, 1, 1]) & (extra <= [2, 2, 2])), extra
 
 
+def _systematic_copies(w, n, u):
+    """Copies of each particle from the ``n`` points ``(j + u)/n`` through the weight CDF, by a loop."""
+    cdf = np.cumsum(w) / np.sum(w)
+    counts = np.zeros(len(w), int)
+    for j in range(n):
+        counts[next(m for m in range(len(w)) if (j + u) / n <= cdf[m] + 1e-15)] += 1
+    return counts
+
+
+def test_fixed_size_fills_a_shortfall_with_points_spread_over_the_whole_cdf():
+    """Eight points on four equal weights give exactly two more copies of each, whatever the offset;
+    on (0.1, 0.35, 0.05, 0.5) seven points give the copies of a loop over (j + u)/7, u the
+    generator's first uniform taken on (0, 1]."""
+    w = np.array([0.1, 0.35, 0.05, 0.5])
+    for seed in range(20):
+        idx = fixed_size(rs.Resampled(np.array([3]), np.ones(1)), np.ones(4), np.random.default_rng(seed), 9)
+        assert len(idx) == 9 and np.all(np.diff(idx) >= 0)
+        np.testing.assert_array_equal(np.bincount(idx, minlength=4), [2, 2, 2, 3])
+        idx = fixed_size(rs.Resampled(np.array([0, 0]), np.ones(2)), w, np.random.default_rng(seed), 9)
+        u = 1.0 - np.random.default_rng(seed).random()
+        np.testing.assert_array_equal(np.bincount(idx, minlength=4) - [2, 0, 0, 0], _systematic_copies(w, 7, u))
+
+
 def test_optimal_threshold_at_a_tied_weight():
     """Weights (2, 2, 1, 2, 2, 0, 3, 3, 4, 4)/23 down to 7: c = 23/3 exactly (ℵ = 3/23, on
     the two 3s): the 4s and 3s are kept, three of the others drawn, each carrying 3/23."""
@@ -325,6 +357,16 @@ def test_optimal_threshold_at_a_tied_weight():
         light = ~np.isin(res.indices, [6, 7, 8, 9])
         np.testing.assert_allclose(res.weights[light], 3 / 23)
         np.testing.assert_allclose(res.weights[~light], w[res.indices[~light]] / 23)
+
+
+def test_optimal_keeps_both_heavy_particles_when_a_negligible_weight_hides_in_the_round_off():
+    """(0.9, 0.1, 1e-30) down to 2: ℵ = 0.1 exactly (Σ min(10 w, 1) = 2), so both heavy particles
+    are kept with their own weights. The tail sum 0.1 + 1e-30 rounds to 0.1, so c·w is 1 there to
+    the last bit: a strict test found no k, fell back to k = 0 and drew particle 1 one time in five."""
+    for seed in range(10):
+        res = resample("optimal", np.array([0.9, 0.1, 1e-30]), np.random.default_rng(seed), size=2)
+        np.testing.assert_array_equal(res.indices, [0, 1])
+        np.testing.assert_allclose(res.weights, [0.9, 0.1], rtol=1e-12)
 
 
 def test_optimal_down_to_the_positive_count_keeps_every_positive_particle():
