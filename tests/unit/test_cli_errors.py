@@ -140,6 +140,7 @@ def test_eval_detector_and_training_check_their_outputs_before_the_work(tmp_path
     base = ["eval-detector", "--bag", str(bags / "full")]
     _refused([*base, "--json", str(tmp_path / "m.json"), "--png", str(tmp_path / "m.xyz")], "--png .*m.xyz: give a file name ending in .png")
     _refused([*base, "--json", str(tmp_path / "adir")], "--json .*adir is a folder")
+    _refused([*base, "--json", str(tmp_path / "m.png")], "--png .*m.png is the --json file")  # the curve, then the JSON over it
     _refused([*base, "--json", str(tmp_path / "m.json"), "--png", str(tmp_path / "afile" / "m.png")], "--png .*is not a writable folder")
     (tmp_path / "data").mkdir()
     (tmp_path / "data" / "dataset.json").write_text('{"images": 1}')
@@ -226,6 +227,13 @@ def test_evaluation_commands_refuse_an_unwritable_output_before_running(tmp_path
             ([*score, "--json", str(tmp_path / "s.json"), "--report-dir", str(blocker)],
              f"--report-dir {blocker} is not a folder"),
             ([*score, "--json", str(blocker)], f"--json {blocker} is the --estimate file"),  # overwritten before
+            (["score", "--truth", str(blocker), "--estimate", str(bags / "full"), "--json", str(blocker)],
+             f"--json {blocker} is the --truth file"),  # a ground-truth CSV replaced by the summary
+            (["evaluate", "--bag", str(bags / "full"), "--config", str(blocker), "--json", str(blocker)],
+             f"--json {blocker} is the --config file"),
+            (["eval-boosting", "--database", str(blocker), "--json", str(blocker)], f"--json {blocker} is the --database file"),
+            (["eval-boosting", "--camera", str(blocker), "--json", str(blocker)], f"--json {blocker} is the --camera file"),
+            (["build-database", "--model", str(blocker), "--out", str(blocker)], f"--out {blocker} is the --model file"),
             (["evaluate", "--bag", str(bags / "full"), "--json", under_file], "--json .* is not a writable folder"),
             (["evaluate", "--bag", str(bags / "full"), "--plots", str(blocker)], "--plots .* is not a folder"),
             (["eval-metrics", "--out", str(blocker)], "--out .* is not a folder"),

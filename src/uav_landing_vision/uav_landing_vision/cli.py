@@ -23,10 +23,14 @@ _COMMAND_MODULES = [
 ]
 
 
-def check_output(option: str, path, folder: bool = False) -> None:
-    """ValueError unless ``path`` (a file, or with ``folder`` a folder) can be written: checked
-    before a long run rather than after it, when its results would be lost."""
+def check_output(option: str, path, folder: bool = False, others=()) -> None:
+    """ValueError unless ``path`` (a file, or with ``folder`` a folder) can be written, and is none
+    of ``others``, ``(option, path or None)`` of the command's inputs and other outputs, which it
+    would overwrite: checked before a long run rather than after it, when its results would be lost."""
     path = Path(path).absolute()
+    for other, given in others:
+        if given is not None and Path(given).resolve() == path.resolve():
+            raise ValueError(f"{option} {path} is the {other} file: it would be overwritten")
     if path.exists():
         if path.is_dir() != folder:
             raise ValueError(f"{option} {path} is {'not ' if folder else ''}a folder")

@@ -45,6 +45,13 @@ def _model_args(p) -> None:
     p.add_argument("--unit", default="m", help="length unit of a CAD file: m, cm or mm (default: m)")
 
 
+def _model_files(args) -> tuple:
+    """``(option, path or None)`` of the camera and CAD files ``_model_args`` name (a level is no file)."""
+    from ..model import LEVELS
+
+    return ("--camera", args.camera), ("--model", None if args.model in LEVELS else args.model)
+
+
 def _load_camera_and_mesh(args):
     from ..camera import load_camera_info_yaml
     from ..model import LEVELS, fixed_wing_mesh, load_mesh
@@ -64,7 +71,7 @@ def _build(args) -> int:
     if args.seed < 0:
         raise SystemExit(f"uav-landing build-database: --seed must be non-negative, got {args.seed}")
     try:
-        check_output("--out", args.out)
+        check_output("--out", args.out, others=_model_files(args))
         camera, mesh = _load_camera_and_mesh(args)
         config = DatabaseConfig(
             count=args.count, distance=args.distance, seed=args.seed,
@@ -94,7 +101,7 @@ def _evaluate(args) -> int:
             aspect_weight=args.aspect_weight,
         )
         if args.json is not None:
-            check_output("--json", args.json)
+            check_output("--json", args.json, others=(("--database", args.database), *_model_files(args)))
         camera, mesh = _load_camera_and_mesh(args)
         result = evaluate_boosting(camera, mesh, config, database_path=args.database, progress=not args.quiet)
     except (ValueError, OSError) as exc:  # CameraInfoError, MeshError, DatabaseError, bad settings, files

@@ -190,7 +190,7 @@ def _evaluate(args) -> int:
         if png.suffix.lower() != ".png":
             raise ValueError(f"--png {png}: give a file name ending in .png")
         check_output("--json", args.json)
-        check_output("--png", png)
+        check_output("--png", png, others=(("--json", args.json),))
         r = evaluate_bag(args.bag, cfg, args.json, png, truth_box=args.truth_box, remaps=parse_remaps(args.remap))
     except (ValueError, OSError) as exc:  # a bag that cannot be read or lacks a topic, a missing model
         raise SystemExit(f"uav-landing eval-detector: {exc}") from None

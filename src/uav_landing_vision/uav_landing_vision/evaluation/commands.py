@@ -33,9 +33,7 @@ def _run(args) -> int:
         if not path.exists():
             raise SystemExit(f"uav-landing score: {what} {path} does not exist")
     try:
-        check_output("--json", args.json)
-        if args.json.resolve() == args.estimate.resolve():
-            raise ValueError(f"--json {args.json} is the --estimate file: it would be overwritten")
+        check_output("--json", args.json, others=(("--truth", args.truth), ("--estimate", args.estimate)))
         if args.report_dir:
             check_output("--report-dir", args.report_dir, folder=True)
         errors, ms = score_files(args.truth, args.estimate, args.topic)

@@ -54,7 +54,7 @@ def _run(args) -> int:
         if args.seed < 0:
             raise ValueError(f"--seed must be non-negative, got {args.seed}")
         if args.json:
-            check_output("--json", args.json)
+            check_output("--json", args.json, others=(("--config", args.config),))
         if args.plots:
             check_output("--plots", args.plots, folder=True)
         remaps = parse_remaps(args.remap)
