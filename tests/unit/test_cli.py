@@ -1,8 +1,15 @@
-"""The ``uav-landing`` command: every registered subcommand parses; the demo refuses bad arguments."""
+"""The ``uav-landing`` command: every registered subcommand parses; the demo refuses bad arguments;
+its exit statuses; where the shipped configuration and models are found (the source checkout
+first, then the first ament prefix that has them)."""
+
+import importlib
+import os
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+from uav_landing_vision import resources
 from uav_landing_vision.cli import build_parser, main
 from uav_landing_vision.sim import Poses, write_pose_csv
 
@@ -218,3 +225,80 @@ def test_score_takes_the_estimates_of_a_run_that_posed_no_frame(tmp_path, capsys
     assert main([*argv, "--json", str(tmp_path / "s.json")]) == 0
     assert "C4N2: statistics over 0 of 2 frames (100.0 % lost)" in capsys.readouterr().out
     assert json.loads((tmp_path / "s.json").read_text())["variants"]["C4N2"]["lost_frames_pct"] == 100.0
+
+
+def test_no_subcommand_is_a_usage_error(capsys):
+    with pytest.raises(SystemExit) as stop:
+        main([])
+    assert stop.value.code == 2 and "COMMAND" in capsys.readouterr().err
+
+
+def test_ctrl_c_in_a_command_exits_130_with_one_line(tmp_path, monkeypatch, capsys):
+    score = importlib.import_module("uav_landing_vision.evaluation.score")
+    for name in ("truth", "est.csv"):
+        (tmp_path / name).touch()
+
+    def interrupted(*args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(score, "score_files", interrupted)
+    assert main(["score", "--truth", str(tmp_path / "truth"), "--estimate", str(tmp_path / "est.csv"),
+                 "--json", str(tmp_path / "s.json")]) == 130
+    assert capsys.readouterr().err == "interrupted\n"
+    assert not (tmp_path / "s.json").exists()
+
+
+def _share(prefix: Path, kind: str, name: str) -> Path:
+    path = prefix / "share" / resources.PACKAGE / kind / name
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("shared")
+    return path
+
+
+def test_a_source_checkout_reads_its_own_config_and_models(monkeypatch):
+    monkeypatch.setenv("AMENT_PREFIX_PATH", "")
+    for path, kind in ((resources.config_path("camera.yaml"), "config"), (resources.config_path("scenarios"), "config"),
+                       (resources.model_path("pose_database.npz"), "models"), (resources.model_path("detector.onnx"), "models")):
+        assert path.exists() and path.parent.name == kind
+
+
+def test_the_checkouts_files_win_over_an_installed_copy(tmp_path, monkeypatch):
+    _share(tmp_path / "prefix", "config", "camera.yaml")
+    _share(tmp_path / "prefix", "models", "pose_database.npz")
+    monkeypatch.setenv("AMENT_PREFIX_PATH", str(tmp_path / "prefix"))
+    assert not resources.config_path("camera.yaml").is_relative_to(tmp_path)
+    assert not resources.model_path("pose_database.npz").is_relative_to(tmp_path)
+
+
+def test_files_only_installed_come_from_the_first_prefix_that_has_the_package(tmp_path, monkeypatch):
+    first = _share(tmp_path / "first", "config", "only_installed.yaml")
+    _share(tmp_path / "second", "config", "only_installed.yaml")
+    model = _share(tmp_path / "second", "models", "only_installed.npz")
+    (tmp_path / "none").mkdir()
+    monkeypatch.setenv("AMENT_PREFIX_PATH", os.pathsep.join(str(tmp_path / p) for p in ("none", "first", "second")))
+    assert resources.config_path("only_installed.yaml") == first
+    monkeypatch.setenv("AMENT_PREFIX_PATH", os.pathsep.join(str(tmp_path / p) for p in ("none", "second")))
+    assert resources.model_path("only_installed.npz") == model
+
+
+def test_an_empty_ament_prefix_is_not_the_working_directory(tmp_path, monkeypatch):
+    _share(tmp_path / "cwd", "config", "only_installed.yaml")
+    installed = _share(tmp_path / "prefix", "config", "only_installed.yaml")
+    monkeypatch.chdir(tmp_path / "cwd")
+    monkeypatch.setenv("AMENT_PREFIX_PATH", os.pathsep + str(tmp_path / "prefix"))
+    assert resources.config_path("only_installed.yaml") == installed
+
+
+def test_model_file_takes_paths_as_they_are_and_names_from_the_models_folder(tmp_path, monkeypatch):
+    missing = tmp_path / "nosuch.onnx"
+    assert resources.model_file(missing) == missing  # its reader reports it missing, by its path
+    assert resources.model_file(str(missing)) == missing
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "mine.onnx").write_bytes(b"")
+    assert resources.model_file("mine.onnx") == Path("mine.onnx")
+    assert resources.model_file("verifier.onnx") == resources.model_path("verifier.onnx")
+    with pytest.raises(FileNotFoundError, match="models file 'other.onnx' not found"):
+        resources.model_file("other.onnx")
+    (tmp_path / "own.yaml").write_text("")
+    assert resources.config_file("own.yaml") == Path("own.yaml")
+    assert resources.config_file("camera.yaml") == resources.config_path("camera.yaml")

@@ -45,12 +45,17 @@ def _refused(argv, message):
         main(argv)
 
 
-def test_simulate_refuses_bad_options_and_camera_files(tmp_path):
+def test_simulate_refuses_bad_options_and_camera_files(tmp_path, monkeypatch):
     out = tmp_path / "bag"
     (tmp_path / "png").mkdir()
-    _refused(["simulate", "--out", str(out), "--frames", "1", "--png-dir", str(tmp_path / "png")],
-             re.escape(f"--png-dir {tmp_path / 'png'} exists already"))
-    _refused(["simulate", "--out", str(out), "--frames", "1", "--seed", "-1"], "--seed must be non-negative")
+    with monkeypatch.context() as patch:  # the options are checked before the run; the camera files by it
+        _never_run(patch)
+        _refused(["simulate", "--out", str(tmp_path / "png")],
+                 re.escape(f"--out {tmp_path / 'png'} exists already; give a new directory"))
+        _refused(["simulate", "--out", str(out), "--frames", "0"], "--frames must be at least 1")
+        _refused(["simulate", "--out", str(out), "--frames", "1", "--png-dir", str(tmp_path / "png")],
+                 re.escape(f"--png-dir {tmp_path / 'png'} exists already"))
+        _refused(["simulate", "--out", str(out), "--frames", "1", "--seed", "-1"], "--seed must be non-negative")
     scenario = tmp_path / "scenario.yaml"
     scenario.write_text(f"approach: {{}}\ncamera_info: {tmp_path / 'nosuch.yaml'}\n")
     _refused(["simulate", "--scenario", str(scenario), "--out", str(out), "--frames", "1"],
@@ -105,8 +110,10 @@ def test_eval_detector_refuses_unusable_bags_and_models(tmp_path, bags):
     refused(bags / "full", "models file 'nosuch.onnx' not found", "--model", "nosuch.onnx")
 
 
-def test_score_refuses_an_empty_truth(tmp_path, bags):
+def test_score_refuses_a_missing_or_empty_truth(tmp_path, bags):
     (tmp_path / "est.csv").write_text("stamp_ns,x,y,z,qx,qy,qz,qw\n1,0,0,5,0,0,0,1\n")
+    _refused(["score", "--truth", str(tmp_path / "nosuch"), "--estimate", str(tmp_path / "est.csv"),
+              "--json", str(tmp_path / "s.json")], "--truth .*nosuch does not exist$")
     _refused(["score", "--truth", str(bags / "empty"), "--estimate", str(tmp_path / "est.csv"),
               "--json", str(tmp_path / "s.json")], ".*empty holds no ground-truth pose")
     assert not (tmp_path / "s.json").exists()
@@ -199,7 +206,7 @@ def test_no_opengl_is_one_line_naming_what_to_install(tmp_path):
 
 
 def _never_run(monkeypatch):
-    """Every evaluation's long run fails the test: a refusal must come before it."""
+    """Every evaluation's or simulation's long run fails the test: a refusal must come before it."""
     import importlib
 
     def ran(*args, **kwargs):
@@ -210,7 +217,8 @@ def _never_run(monkeypatch):
                          ("uav_landing_vision.tracking.optimiser_evaluation", "evaluate_optimisers"),
                          ("uav_landing_vision.boosting.evaluation", "evaluate_boosting"),
                          ("uav_landing_vision.boosting.database", "build_database"),
-                         ("uav_landing_vision.evaluation.score", "score_files")):
+                         ("uav_landing_vision.evaluation.score", "score_files"),
+                         ("uav_landing_vision.sim.simulate", "simulate")):
         monkeypatch.setattr(importlib.import_module(module), name, ran)
 
 
