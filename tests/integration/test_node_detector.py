@@ -20,7 +20,7 @@ from uav_landing_vision.detection.detector import Detections, search_window
 from uav_landing_vision.detection.track_box import grow_roi
 from uav_landing_vision.model import fixed_wing_mesh
 from uav_landing_vision.nodes import detector as detector_module
-from uav_landing_vision.nodes.detector import DetectorNode
+from uav_landing_vision.nodes.detector import DetectorNode, DetectorNodeConfig
 from uav_landing_vision.nodes.qos import IMAGE_QOS, RELIABLE_QOS
 from uav_landing_vision.render.boxes import projected_roi
 
@@ -204,7 +204,7 @@ def test_track_box_where_the_network_finds_nothing(ros, model):
     "override, message",
     [
         (Parameter("score_threshold", value=1.5), "score_threshold must be in"),
-        (Parameter("node.window_max_age_s", value=-1.0), "window_max_age_s must be > 0"),
+        (Parameter("node.window_max_age_s", value=-1.0), "window_max_age_s must be finite and > 0"),
         (Parameter("node.search_window", value="on"), "node.search_window: expected bool"),
         (Parameter("stride", value=8), r"unknown key\(s\) \['stride'\]"),
         (Parameter("track_box.max_frames", value=0), "max_frames must be at least 1"),
@@ -213,6 +213,12 @@ def test_track_box_where_the_network_finds_nothing(ros, model):
 def test_bad_parameters_fail_start_up(ros, override, message):
     with pytest.raises(ConfigError, match=message):
         DetectorNode(context=ros.context, cli_args=["--ros-args", "--params-file", str(PARAMS)], parameter_overrides=[override])
+
+
+@pytest.mark.parametrize("age", [0.0, -1.0, float("inf"), float("nan")])
+def test_node_config_built_in_code_refuses_an_age_limit_that_is_not_finite_and_positive(age):
+    with pytest.raises(ValueError, match="window_max_age_s must be finite and > 0"):
+        DetectorNodeConfig(window_max_age_s=age)
 
 
 # --- search window and track box, with a scripted network and the callbacks called directly ------

@@ -45,20 +45,26 @@ def _model_args(p) -> None:
     p.add_argument("--unit", default="m", help="length unit of a CAD file: m, cm or mm (default: m)")
 
 
-def _model_files(args) -> tuple:
-    """``(option, path or None)`` of the camera and CAD files ``_model_args`` name (a level is no file)."""
+def _cad_file(args):
+    """The CAD file ``--model`` names, or None for a built-in level."""
     from ..model import LEVELS
 
-    return ("--camera", args.camera), ("--model", None if args.model in LEVELS else args.model)
+    return None if args.model in LEVELS else args.model
+
+
+def _model_files(args) -> tuple:
+    """``(option, path or None)`` of the camera and CAD files ``_model_args`` name."""
+    return ("--camera", args.camera), ("--model", _cad_file(args))
 
 
 def _load_camera_and_mesh(args):
     from ..camera import load_camera_info_yaml
-    from ..model import LEVELS, fixed_wing_mesh, load_mesh
+    from ..model import fixed_wing_mesh, load_mesh
     from ..resources import config_path
 
     camera = load_camera_info_yaml(args.camera or config_path("camera.yaml")).rectified()
-    mesh = fixed_wing_mesh(args.model) if args.model in LEVELS else load_mesh(args.model, args.unit)
+    cad = _cad_file(args)
+    mesh = fixed_wing_mesh(args.model) if cad is None else load_mesh(cad, args.unit)
     return camera, mesh
 
 

@@ -17,6 +17,7 @@ A missing or unusable model fails start-up (exit code 2) with the commands that 
 detections are never made up. Unusable images and poses are logged, counted and dropped.
 """
 
+import math
 import sys
 from dataclasses import dataclass
 
@@ -50,8 +51,8 @@ class DetectorNodeConfig:
     window_max_age_s: float = 0.5  # an older pose (image stamp − pose stamp) is not used
 
     def __post_init__(self):
-        if not self.window_max_age_s > 0.0:
-            raise ValueError(f"window_max_age_s must be > 0, got {self.window_max_age_s}")
+        if not (math.isfinite(self.window_max_age_s) and self.window_max_age_s > 0.0):
+            raise ValueError(f"window_max_age_s must be finite and > 0, got {self.window_max_age_s}")
 
 
 class DetectorNode(LandingNode):
