@@ -739,6 +739,7 @@ def test_a_camera_info_that_changes_only_an_unsupported_field_is_refused_not_tak
     assert calibration.camera.width == 320 and message in calibration.refused
     assert calibration.update(_info()) is False  # the calibration in use, again: a repeat
     assert calibration.camera.height == 240
+    assert calibration.refused == ""  # the latest camera_info is the one in use
 
 
 def test_the_reason_of_a_refusal_is_kept_until_a_calibration_is_taken():

@@ -10,7 +10,7 @@ class Calibration:
     def __init__(self, rectified: bool = False):
         self.camera: CameraModel | None = None
         self.rectified = rectified
-        self.refused = ""  # why the latest camera_info was refused; "" once one is taken
+        self.refused = ""  # why the latest camera_info was refused; "" once one is taken or repeated
         self._key = None
 
     def update(self, msg, use=None) -> bool:
@@ -25,6 +25,7 @@ class Calibration:
         key = (msg.width, msg.height, msg.distortion_model, tuple(msg.d), tuple(msg.k), tuple(msg.r),
                msg.binning_x, msg.binning_y, roi.x_offset, roi.y_offset, roi.width, roi.height)
         if key == self._key:
+            self.refused = ""
             return False
         try:
             camera = self._camera(msg, use)
