@@ -99,7 +99,10 @@ class _UKFRotation(RotationUKF):
         return state.p[..., :3, :3].copy()
 
 
-class _UBiFRotation(UBiF):
+class _BinghamRotation:
+    """A Bingham filter (UBiF or UBiGaF, the class it is mixed into) with the configured noises
+    and start spreads."""
+
     def __init__(self, cfg: MotionFilterConfig):
         super().__init__(cfg.dt, cfg.process_z, cfg.measurement_z, np.full(3, cfg.omega_process_std**2),
                          cfg.outlier_prob)
@@ -109,14 +112,12 @@ class _UBiFRotation(UBiF):
         return super().init(quat, omega, self.z0, self.omega_cov0)
 
 
-class _UBiGaFRotation(UBiGaF):
-    def __init__(self, cfg: MotionFilterConfig):
-        super().__init__(cfg.dt, cfg.process_z, cfg.measurement_z, np.full(3, cfg.omega_process_std**2),
-                         cfg.outlier_prob)
-        self.z0, self.omega_cov0 = cfg.initial_z, np.full(3, cfg.initial_omega_std**2)
+class _UBiFRotation(_BinghamRotation, UBiF):
+    pass
 
-    def init(self, quat, omega):
-        return super().init(quat, omega, self.z0, self.omega_cov0)
+
+class _UBiGaFRotation(_BinghamRotation, UBiGaF):
+    pass
 
 
 def make_rotation_filter(cfg: MotionFilterConfig) -> RotationFilter:

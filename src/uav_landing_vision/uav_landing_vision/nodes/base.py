@@ -24,6 +24,7 @@ from rclpy.node import Node
 from ..camera import CameraInfoError
 from ..config import ConfigError, from_mapping
 from ..stamps import header_stamp_ns, stamp_ns
+from .image import ImageError, image_to_rgb
 from .participant import ImageParticipant
 from .qos import RELIABLE_QOS
 
@@ -150,6 +151,16 @@ class LandingNode(Node):
         except CameraInfoError as exc:
             self.drop(f"camera_info rejected: {exc}")
             return False
+
+    def receive_frame(self, msg):
+        """Count an Image received and convert it (:func:`.image.image_to_rgb`); None when it
+        cannot be used, dropped with the reason."""
+        self.counters["received"] += 1
+        try:
+            return image_to_rgb(msg)
+        except ImageError as exc:
+            self.drop(str(exc))
+            return None
 
     def hold(self, held, frame: tuple, limit: int, waiting_for: str) -> None:
         """Keep ``frame`` (its first item the Image) in the deque ``held`` until the node can use it

@@ -33,7 +33,6 @@ from ..render.boxes import projected_roi
 from ..stamps import stamp_ns, within_age
 from .base import LandingNode, run_node
 from .calibration import Calibration
-from .image import ImageError, image_to_rgb
 from .poses import pose_to_numpy
 from .qos import IMAGE_QOS, RELIABLE_QOS
 
@@ -105,11 +104,7 @@ class DetectorNode(LandingNode):
         return search_window(roi, width, height, self.config.window_grow, self.config.window_min_px)
 
     def _on_image(self, msg: Image) -> None:
-        self.counters["received"] += 1
-        try:
-            frame = image_to_rgb(msg)
-        except ImageError as exc:
-            self.drop(str(exc))
+        if (frame := self.receive_frame(msg)) is None:
             return
         stamp = stamp_ns(msg.header.stamp)
         window = self._window(stamp, msg.width, msg.height) if self.node_config.search_window else None

@@ -42,7 +42,6 @@ from ..resources import model_file
 from ..stamps import stamp_ns
 from .base import LandingNode, run_node
 from .calibration import Calibration
-from .image import ImageError, image_to_rgb
 from .poses import numpy_to_pose
 from .qos import IMAGE_QOS, RELIABLE_QOS
 from .sync import RESTART_BEHIND_NS, RepeatedStampError, StampCache
@@ -94,11 +93,7 @@ class PoseBoostingNode(LandingNode):
             self._boost(*pair)
 
     def _on_image(self, msg: Image) -> None:
-        self.counters["received"] += 1
-        try:
-            frame = image_to_rgb(msg)
-        except ImageError as exc:
-            self.drop(str(exc))
+        if (frame := self.receive_frame(msg)) is None:
             return
         self._add("image", msg.header, (msg, frame))
 

@@ -62,7 +62,7 @@ from ..stamps import stamp_ns
 from ..tracking.upf import MAX_PREDICTION_STEPS, Tracker, TrackerConfig, gap_steps, render_batch
 from .base import LandingNode, run_node
 from .calibration import Calibration
-from .image import ImageError, image_to_rgb, numpy_to_image
+from .image import numpy_to_image
 from .poses import numpy_to_pose, pose_to_numpy
 from .qos import IMAGE_QOS, RELIABLE_QOS
 from .sync import RESTART_BEHIND_NS, RepeatedStampError, StampCache
@@ -142,13 +142,9 @@ class TrackerNode(LandingNode):
             self._track(*frame)
 
     def _on_image(self, msg: Image) -> None:
-        self.counters["received"] += 1
-        stamp = stamp_ns(msg.header.stamp)
-        try:  # checked first: only a frame the tracker can use may start a new time-line
-            frame = image_to_rgb(msg)
-        except ImageError as exc:
-            self.drop(str(exc))
+        if (frame := self.receive_frame(msg)) is None:  # checked first: only a usable frame may start a new time-line
             return
+        stamp = stamp_ns(msg.header.stamp)
         if mismatch := self._size_mismatch(msg):
             self.drop(mismatch)
             return
