@@ -519,9 +519,6 @@ def test_diagnostics_report_counters_and_the_last_error(ros):
     assert (values["received"], values["dropped"], values["published"], values["last_error"]) == ("2", "1", "0", "bad thing")
 
 
-# Cases from a mutation audit: each fails on a mutant of the code that the tests above let pass.
-
-
 def test_stamp_cache_size_must_be_positive():
     """Size 0 would evict every incomplete stamp at once: nothing could ever pair."""
     with pytest.raises(ValueError, match="at least 1"):

@@ -195,9 +195,6 @@ def test_a_uav_cut_by_the_frame_edge_gives_no_hypotheses(camera):
     renderer.release()
 
 
-# Cases from a mutation audit: each fails on a mutant of the code that the tests above let pass.
-
-
 def _database(camera, obbs, quats=None):
     obbs = np.asarray(obbs, dtype=float)
     if quats is None:

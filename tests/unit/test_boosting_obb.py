@@ -251,9 +251,6 @@ def test_fast_config_validation(kwargs):
         FastConfig(**kwargs)
 
 
-# Cases from a mutation audit: each fails on a mutant of the code that the tests above let pass.
-
-
 def test_a_box_under_a_pixel_thick_is_degenerate():
     """Not collinear, but 0.5 px thick: no box (its area, hence the depth (4.5), is meaningless)."""
     assert obb_from_points(np.array([[0.0, 0.0], [100.0, 0.0], [50.0, 0.5]])) is None

@@ -78,7 +78,7 @@ def edit(path: str, value):
         ("cone.max_range_rate_mps", math.inf, "max_range_rate_mps"),
         ("stale_timeout_s", 0.45, "go-around advisory deadline"),
         ("go_around_hold_s", -1.0, "go_around_hold_s"),
-        # Each bound of the cone, each passed by a mutant of its check (α2 ≤ 0: a cone below the net).
+        # Each bound of the cone on its own (α2 ≤ 0 would be a cone below the net).
         ("cone.glide_slope_deg", 12.0, "glide_slope_deg < alpha1_deg"),
         ("cone.alpha2_deg", 0.0, "0 < alpha2_deg"),
         ("cone.alpha2_deg", -5.0, "0 < alpha2_deg"),

@@ -531,6 +531,7 @@ def test_after_a_reset_no_return_needs_a_new_run_of_poses():
     stages_seen = [machine.update(0.1 * k, geometry_at(next(ranges)), 0.1 * k) for k in range(6, 11)]
     assert stages_seen == [Stage.APPROACH, Stage.LAND, Stage.LAND, Stage.LAND, Stage.NO_RETURN]
 
+
 def test_dataclass_config_is_what_the_bridge_uses():
     cfg = dataclasses.replace(CONFIG, cone=dataclasses.replace(CONE, distance_m=30.0))
     sender = RecordingSender()
@@ -538,8 +539,6 @@ def test_dataclass_config_is_what_the_bridge_uses():
     fly(b, lambda t: on_axis(40.0), t_end=0.5)
     assert b.stage == Stage.APPROACH  # 40 m is outside a 30 m cone
 
-
-# Tests from a mutation audit of the bridge: each fails on a mutant that an earlier test let pass.
 
 def test_one_pose_seen_at_several_ticks_counts_once_towards_no_return(bridge):
     """The stage machine takes the pose's stamp, not the tick's: a lone in-cone outlier at 8 m,

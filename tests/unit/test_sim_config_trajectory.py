@@ -51,7 +51,7 @@ def test_shipped_scenarios_load(name):
     ("approach: {}\nbackground: {sun_elevation_deg: 200}\n", r"sun_elevation_deg must be in \[0, 90\]"),
     ("single_frame: {distances_m: [5, 10], poses_per_distance: 100000000}\n",
      "single_frame: 2 distances × 100000000 poses is over 1000000 frames"),
-    # Each range and ordering check on its own (a mutation audit found them untested).
+    # Each range and ordering check on its own.
     ("approach: {}\nsingle_frame: {}\n", "exactly one of"),
     ("approach: {}\nstart_time_s: 3000000000\n", "start_time_s must be in"),
     ("approach: {alpha1_deg: 5, alpha2_deg: 5}\n", "alpha2_deg < alpha1_deg"),

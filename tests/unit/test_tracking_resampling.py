@@ -96,7 +96,7 @@ def _exact_threshold(weights, size):
 def test_optimal_returns_size_particles_and_keeps_those_above_the_exact_threshold():
     """Integer weights with ties: in floating point c·desc[k] came out 1 + 2⁻⁵² at one k and
     1 − 2⁻⁵³ at the next, no k passed both tests, and c = size was taken: 8 or 9 particles of
-    (7, 5, 0, 4, 3, 6, 3, 1, 6, 5, 1, 7, 1) came back for 10 (found by a mutation audit)."""
+    (7, 5, 0, 4, 3, 6, 3, 1, 6, 5, 1, 7, 1) came back for 10."""
     rng = np.random.default_rng(0)
     cases = [(np.array([7, 5, 0, 4, 3, 6, 3, 1, 6, 5, 1, 7, 1]), 10)]
     for _ in range(300):
@@ -260,9 +260,6 @@ def test_weights_whose_sum_overflows_still_resample():
 def test_metropolis_never_keeps_a_zero_weight_particle():
     w = np.eye(100)[37]  # one particle holds all the weight: no chain may stay on another
     np.testing.assert_array_equal(resample("metropolis", w, np.random.default_rng(0)).indices, np.full(100, 37))
-
-
-# Cases from a mutation audit: each fails on a mutant of the code that the tests above let pass.
 
 
 def test_multinomial_indices_are_ascending():

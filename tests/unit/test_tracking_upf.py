@@ -784,9 +784,6 @@ def test_rotation_window_averages_the_published_rotation_and_nothing_else(render
         TrackerConfig(rotation_window=0)
 
 
-# Cases from a mutation audit: each fails on a mutant of the code that the tests above let pass.
-
-
 @pytest.mark.parametrize("kwargs", [{"acquire_likelihood": 0.2, "lost_likelihood": 0.2},
                                     {"acquire_frames": 0}, {"lost_frames": 0}])
 def test_track_state_config_refuses(kwargs):

@@ -34,7 +34,7 @@ class TrackBoxConfig:
         if self.max_frames < 1:
             raise ValueError(f"max_frames must be at least 1, got {self.max_frames}")
         if not (np.isfinite(self.max_age_s) and self.max_age_s > 0.0):
-            raise ValueError(f"max_age_s must be > 0, got {self.max_age_s}")
+            raise ValueError(f"max_age_s must be finite and > 0, got {self.max_age_s}")
 
 
 def grow_roi(roi, grow: float, width: int, height: int) -> tuple[int, int, int, int]:
