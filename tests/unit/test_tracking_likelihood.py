@@ -1,5 +1,5 @@
 """§5.4.1 likelihoods: (5.14) against a per-pixel loop oracle, (5.15)–(5.17) against a per-point loop
-oracle (OpenCV edges, scipy distances), batching, ranking, frame checks."""
+oracle (OpenCV edges, scipy distances), batching, ranking, frame and configuration checks."""
 
 import cv2
 import numpy as np
@@ -19,6 +19,8 @@ from uav_landing_vision.tracking.likelihood import (
     ColourConfig,
     ColourHistogramLikelihood,
     ContourConfig,
+    DistanceTransformConfig,
+    EdgeConfig,
     colour_similarity,
     contour_likelihood,
     dt_likelihood,
@@ -386,6 +388,29 @@ def test_factory_configs(renderer):
         make_likelihood("contour", renderer, {"edges": {"canny_low": 200.0, "canny_high": 100.0}})
 
 
+def test_contour_and_distance_transform_configs_refuse_negative_weights_and_a_zero_sigma():
+    """λ_v, λ_e ≥ 0 (0 allowed) and σ in (0, 1e4]."""
+    ContourConfig(lambda_v=0.0, lambda_e=0.0)
+    DistanceTransformConfig(sigma=1e4)
+    for bad in ({"lambda_v": -0.1}, {"lambda_e": -0.1}):
+        with pytest.raises(ValueError, match="lambda"):
+            ContourConfig(**bad)
+    for sigma in (0.0, -1.0, 1e4 * (1 + 1e-9)):
+        with pytest.raises(ValueError, match="sigma"):
+            DistanceTransformConfig(sigma=sigma)
+
+
+def test_edge_config_takes_blur_up_to_ten_pixels_and_an_integer_search_distance():
+    """blur_sigma in [0, 10] px, ten included; search_px an int in [1, 200], not a float even when whole."""
+    EdgeConfig(blur_sigma=10.0)
+    EdgeConfig(blur_sigma=0.0)
+    with pytest.raises(ValueError, match="blur_sigma"):
+        EdgeConfig(blur_sigma=10.0 + 1e-9)
+    for bad in (2.5, 15.0, 0, 201, True):
+        with pytest.raises(ValueError, match="search_px"):
+            ContourConfig(search_px=bad)
+
+
 def test_outline_band_leaves_out_the_outline_and_keeps_thin_cores():
     t = 32
     masks = np.zeros((2, t, t), np.uint8)
@@ -451,6 +476,11 @@ def test_outline_band_of_large_tiles_does_not_reach_the_next_tile():
         np.testing.assert_array_equal(both[1], outline_band(b[None], boxes[:1], band)[0])
 
 
-def test_one_colour_bin_is_refused():
-    with pytest.raises(ValueError, match="2..85"):
-        ColourConfig(bins_per_channel=1)
+def test_colour_bin_counts_below_two_or_overflowing_a_byte_are_refused():
+    """One bin per channel is refused; the three channels' bins share one byte each of the packed
+    sample, so 3·b must stay below 256: 64 bins are taken, 128 and 256 refused. So are counts that
+    do not divide 256 and ones that are no int (a float, or True for 1)."""
+    ColourConfig(bins_per_channel=64)
+    for bad in (1, 128, 256, 12, 8.0, True):
+        with pytest.raises(ValueError, match=r"bins_per_channel must be one of \(2, 4, 8, 16, 32, 64\)"):
+            ColourConfig(bins_per_channel=bad)

@@ -69,8 +69,8 @@ def test_refinement_shifts_are_a_cross_of_the_alignment_step():
     assert sorted(map(tuple, shifts[1:])) == [(-0.5, 0.0), (0.0, -0.5), (0.0, 0.5), (0.5, 0.0)]
 
 
-@pytest.mark.parametrize("bad", [{"candidates": -1}, {"candidates": 2.5}, {"sigma_deg": ()}, {"sigma_deg": (2.0, 0.0)},
-                                 {"align_px": -0.5}, {"align_px": float("nan")}])
+@pytest.mark.parametrize("bad", [{"candidates": -1}, {"candidates": 2.5}, {"candidates": True}, {"sigma_deg": ()},
+                                 {"sigma_deg": (2.0, 0.0)}, {"align_px": -0.5}, {"align_px": float("nan")}])
 def test_refinement_config_is_validated(bad):
     with pytest.raises(ValueError):
         RotationRefinementConfig(**bad)

@@ -7,6 +7,8 @@ import numpy as np
 
 from .likelihood_base import SilhouetteLikelihood, tile_centres
 
+BIN_COUNTS = (2, 4, 8, 16, 32, 64)  # bins per channel: divide 256, and 3·b < 256 packs a sample into a byte
+
 
 @dataclass(frozen=True)
 class ColourConfig:
@@ -21,8 +23,8 @@ class ColourConfig:
 
     def __post_init__(self):
         b = self.bins_per_channel
-        if not (isinstance(b, int) and 2 <= b <= 85 and 256 % b == 0):
-            raise ValueError(f"bins_per_channel must divide 256 and be 2..85, got {b!r}")
+        if isinstance(b, bool) or not isinstance(b, int) or b not in BIN_COUNTS:
+            raise ValueError(f"bins_per_channel must be one of {BIN_COUNTS} (a power of two dividing 256), got {b!r}")
         if not self.band_px >= 0.0:
             raise ValueError(f"band_px must be non-negative, got {self.band_px!r}")
 

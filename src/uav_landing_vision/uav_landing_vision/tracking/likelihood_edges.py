@@ -38,7 +38,7 @@ class ContourConfig:
     edges: EdgeConfig = EdgeConfig()
 
     def __post_init__(self):
-        if not (isinstance(self.search_px, int) and 1 <= self.search_px <= 200):
+        if isinstance(self.search_px, bool) or not (isinstance(self.search_px, int) and 1 <= self.search_px <= 200):
             raise ValueError(f"search_px must be an integer in [1, 200], got {self.search_px!r}")
         if not (self.lambda_v >= 0 and self.lambda_e >= 0):
             raise ValueError(f"lambda_v and lambda_e must be non-negative, got {self.lambda_v}, {self.lambda_e}")

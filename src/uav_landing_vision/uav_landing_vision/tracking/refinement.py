@@ -35,7 +35,7 @@ class RotationRefinementConfig:
     align_px: float = 0.0
 
     def __post_init__(self):
-        if not (isinstance(self.candidates, int) and self.candidates >= 0):
+        if isinstance(self.candidates, bool) or not (isinstance(self.candidates, int) and self.candidates >= 0):
             raise ValueError(f"refinement candidates must be a non-negative integer, got {self.candidates!r}")
         if not self.sigma_deg or not all(0 < s <= 180 for s in self.sigma_deg):
             raise ValueError(f"refinement sigma_deg must be non-empty and within (0, 180], got {self.sigma_deg!r}")
