@@ -355,19 +355,26 @@ def test_bingham_filters_reject_a_non_finite_time_step(cls, dt):
         filt(dt, (-250.0,) * 3, (-800.0,) * 3, np.full(3, 0.25))
 
 
-@pytest.mark.parametrize("depth, sigma", [(30.0, 0.5), (80.0, 0.8)])
-def test_range_fraction_is_the_kalman_filter_of_a_range_grown_measurement_noise(depth, sigma):
-    """With ``position_measurement_range_fraction`` 0.01 and σ 0.5 m, R^l is (0.5 m)² until 50 m
-    of measured depth and (0.01 · depth)² beyond."""
-    cfg = MotionFilterConfig(position_measurement_std=0.5, position_measurement_range_fraction=0.01)
-    filt = TranslationFilter(cfg)
+def _translation_kalman_filter(cfg, x0, sigma):
+    """filterpy's Kalman filter of the translation model (A.2) with ``cfg``'s ``P0`` and ``Q`` and
+    measurement noise σ² I, started at ``x0``."""
     ref = KalmanFilter(dim_x=6, dim_z=3)
     ref.F = np.block([[np.eye(3), cfg.dt * np.eye(3)], [np.zeros((3, 3)), np.eye(3)]])
     ref.H = np.eye(3, 6)
     ref.P = np.diag([cfg.initial_position_std**2] * 3 + [cfg.initial_velocity_std**2] * 3)
     ref.Q = ref.F @ np.diag([cfg.position_process_std**2] * 3 + [cfg.velocity_process_std**2] * 3) @ ref.F.T
     ref.R = sigma**2 * np.eye(3)
-    ref.x = np.array([1.0, -2.0, depth, 0.0, 0.0, 0.0])
+    ref.x = np.array(x0, float)
+    return ref
+
+
+@pytest.mark.parametrize("depth, sigma", [(30.0, 0.5), (80.0, 0.8)])
+def test_range_fraction_is_the_kalman_filter_of_a_range_grown_measurement_noise(depth, sigma):
+    """With ``position_measurement_range_fraction`` 0.01 and σ 0.5 m, R^l is (0.5 m)² until 50 m
+    of measured depth and (0.01 · depth)² beyond."""
+    cfg = MotionFilterConfig(position_measurement_std=0.5, position_measurement_range_fraction=0.01)
+    filt = TranslationFilter(cfg)
+    ref = _translation_kalman_filter(cfg, [1.0, -2.0, depth, 0.0, 0.0, 0.0], sigma)
     state = filt.init(np.repeat(ref.x[None, :3], 2, 0), np.zeros((2, 3)))
     for z in np.random.default_rng(14).normal([1.0, -2.0, depth], [0.3, 0.3, 0.0], (5, 3)):
         ref.predict()
@@ -375,6 +382,30 @@ def test_range_fraction_is_the_kalman_filter_of_a_range_grown_measurement_noise(
         state = filt.update(filt.predict(state), np.broadcast_to(z, (2, 3)))
         np.testing.assert_allclose(state.x, [ref.x, ref.x], atol=1e-9)
         np.testing.assert_allclose(state.p, [ref.P, ref.P], atol=1e-9)
+
+
+@pytest.mark.parametrize("fraction", [0.01, 0.02])
+def test_range_grown_noise_follows_each_particles_own_absolute_measured_depth(fraction):
+    """σ = max(std, fraction · |measured depth|) per particle: particles measured about 20, −80 and
+    120 m deep, in one batch, update as three Kalman filters of their own σ (a negative depth
+    grows the noise as its absolute value does)."""
+    std = 0.5
+    cfg = MotionFilterConfig(position_measurement_std=std, position_measurement_range_fraction=fraction)
+    filt = TranslationFilter(cfg)
+    depths = np.array([20.0, -80.0, 120.0])
+    x0 = np.stack([np.array([1.0, -2.0, d, 0.0, 0.0, 0.0]) for d in depths])
+    refs = [_translation_kalman_filter(cfg, x, std) for x in x0]
+    state = filt.init(x0[:, :3].copy(), np.zeros((3, 3)))
+    rng = np.random.default_rng(15)
+    for _ in range(4):
+        z = x0[:, :3] + rng.normal(0.0, 0.4, (3, 3))
+        state = filt.update(filt.predict(state), z)
+        for i, ref in enumerate(refs):
+            ref.predict()
+            sigma = max(std, fraction * abs(z[i, 2]))  # the measured depth's share
+            ref.update(z[i], R=sigma**2 * np.eye(3))
+            np.testing.assert_allclose(state.x[i], ref.x, atol=1e-9, err_msg=f"particle {i}")
+            np.testing.assert_allclose(state.p[i], ref.P, atol=1e-9, err_msg=f"particle {i}")
 
 
 @pytest.mark.parametrize("fraction", [-0.01, float("nan"), float("inf")])

@@ -1,10 +1,15 @@
 """§5.4.1 likelihoods on hand-made tiles at the frame's borders and in degenerate cases, against
-per-pixel loop oracles and hand-computed values: (5.14) with tiles across every side of the frame,
-the outline band's city-block distance, outline sample points and their normals, the
-(5.15) weights λ_v and λ_e, and (5.16)-(5.17) on a frame without edges or a silhouette outside it."""
+per-pixel loop oracles (scipy, OpenCV) and hand-computed values: (5.14) with tiles across every
+side of the frame and with other bin counts, the silhouette's tight box, the outline band's
+city-block distance and width, outline sample points and their normals (of single, noisy and
+stacked tiles), the (5.15) contour search from the pixel under each sample point and the weights
+λ_v and λ_e, the Canny edge map's hysteresis, and (5.16)-(5.17) on a frame without edges or a
+silhouette outside it."""
 
+import cv2
 import numpy as np
 import pytest
+from scipy import ndimage
 
 from uav_landing_vision.render import SilhouetteBatch
 from uav_landing_vision.tracking.likelihood import (
@@ -14,10 +19,12 @@ from uav_landing_vision.tracking.likelihood import (
     ContourLikelihood,
     DistanceTransformConfig,
     DistanceTransformLikelihood,
+    EdgeConfig,
+    canny_edges,
     contour_likelihood,
 )
 from uav_landing_vision.tracking.likelihood_base import in_image, nearest_pixel, outline_points
-from uav_landing_vision.tracking.likelihood_colour import outline_band
+from uav_landing_vision.tracking.likelihood_colour import outline_band, silhouette_box
 
 W, H = 160, 120
 
@@ -82,6 +89,41 @@ def test_colour_metric_of_tiles_across_each_side_of_the_frame_matches_a_per_pixe
         np.testing.assert_allclose(moved[:, j], want, rtol=0, atol=1e-12)
 
 
+@pytest.mark.parametrize("bins", [2, 4, 16, 64])
+def test_colour_metric_with_other_bin_counts_matches_a_per_pixel_oracle(bins):
+    """bins_per_channel other than the thesis's 8: each channel keeps its own block of bins."""
+    rng = np.random.default_rng(45)
+    frame = rng.integers(0, 256, (H, W, 3), dtype=np.uint8)
+    frame[30:90, 40:120] = rng.integers(0, 256, 3, dtype=np.uint8)
+    t = 16
+    r, c = np.mgrid[:t, :t]
+    masks = np.stack([(r - 7.5) ** 2 + (c - 7.5) ** 2 < 36, (c >= 2) & (c <= r + 2) & (r < 15)]).astype(np.uint8)
+    boxes = np.array([[30.0, 20.0, 62.0, 52.0], [70.5, 60.25, 118.5, 108.25]])
+    lik = ColourHistogramLikelihood(FrameSize(), ColourConfig(bins_per_channel=bins))
+    lik.prepare(frame)
+    got = lik.score_batch(SilhouetteBatch(masks, boxes, np.ones(2, bool)))
+    np.testing.assert_allclose(got, [loop_colour(frame, masks[i], boxes[i], bins) for i in range(2)], atol=1e-12)
+
+
+def test_silhouette_box_is_the_tight_box_and_empty_for_an_empty_tile():
+    """A bar, scattered pixels and a sparse random tile: each tile's box is the rows and columns
+    from its silhouette's first to its last; an empty tile has none."""
+    rng = np.random.default_rng(43)
+    t = 14
+    masks = np.zeros((4, t, t), bool)
+    masks[0, 3:5, 6:11] = True
+    masks[1, rng.integers(0, t, 6), rng.integers(0, t, 6)] = True
+    masks[2] = rng.random((t, t)) < 0.05
+    # masks[3] stays empty
+    got = silhouette_box(masks)
+    for i in range(4):
+        want = np.zeros((t, t), bool)
+        if masks[i].any():
+            rows, cols = np.nonzero(masks[i])
+            want[rows.min() : rows.max() + 1, cols.min() : cols.max() + 1] = True
+        np.testing.assert_array_equal(got[i], want, err_msg=f"tile {i}")
+
+
 def brute_band(mask, scale, band_px):
     """The outline band by brute force: each tile pixel's city-block distance (in tile pixels) to
     the nearest pixel of the other region, kept below max(band_px / scale, 1) + ½, that limit
@@ -119,6 +161,65 @@ def test_outline_band_uses_city_block_distance_to_the_outline(band_px):
         np.testing.assert_array_equal(band[i], brute_band(masks[i], scale, band_px), err_msg=f"tile {i}")
 
 
+@pytest.mark.parametrize("band_px, box", [(2.55, [0.0, 0.0, 40.0, 40.0]), (1.28, [10.0, 10.0, 30.0, 30.0]),
+                                          (5.15, [0.0, 0.0, 80.0, 80.0])])
+def test_outline_band_width_counts_frame_pixels_of_the_tile_pixel_size(band_px, box):
+    """Band widths just past a whole number of tile pixels plus a half (2.55 px at 1 px per tile
+    pixel, 1.28 px at ½, 5.15 px at 2): the tile-pixel size is the box side over the tile
+    side, and the ring at that distance joins the band exactly as the brute force says."""
+    t = 40
+    r, c = np.mgrid[:t, :t]
+    masks = np.stack([(r - 19.5) ** 2 + (c - 19.5) ** 2 < 15**2,
+                      np.abs(r - 19.5) + np.abs(c - 19.5) < 17]).astype(np.uint8)
+    boxes = np.array([box, box])
+    band = outline_band(masks, boxes, band_px)
+    scale = (box[2] - box[0]) / t
+    for i in range(len(masks)):
+        np.testing.assert_array_equal(band[i], brute_band(masks[i], scale, band_px), err_msg=f"tile {i}")
+
+
+def smoothed_gradient(mask):
+    """(x, y) gradient at each tile pixel of the tile's mask, zero-padded and smoothed by the 5×5
+    binomial kernel (scipy): the smoothed value one pixel before minus the one after."""
+    b = np.array([1, 4, 6, 4, 1]) / 16
+    smooth = ndimage.convolve(np.pad(mask.astype(float), 3), np.outer(b, b), mode="constant")
+    return np.stack([smooth[3:-3, 2:-4] - smooth[3:-3, 4:-2], smooth[2:-4, 3:-3] - smooth[4:-2, 3:-3]], axis=-1)
+
+
+def loop_outline(mask, box):
+    """[(point, outward normal)] of one tile by explicit loops: a point mid-way between each inside
+    tile pixel and each outside 4-neighbour; the normal is the smoothed mask's gradient at the
+    inside pixel, or the crack's direction where that gradient vanishes."""
+    t = mask.shape[0]
+    grad = smoothed_gradient(mask)
+    scale = (box[2] - box[0]) / t
+    out = []
+    for r in range(t):
+        for c in range(t):
+            for dr, dc in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+                if not mask[r, c] or (0 <= r + dr < t and 0 <= c + dc < t and mask[r + dr, c + dc]):
+                    continue
+                g = grad[r, c]
+                n = g / np.linalg.norm(g) if np.linalg.norm(g) > 1e-9 else np.array([dc, dr], float)
+                p = np.array([box[0] + (c + 0.5 + 0.5 * dc) * scale, box[1] + (r + 0.5 + 0.5 * dr) * scale])
+                out.append((p, n))
+    return out
+
+
+def _sorted_rows(points, normals):
+    rows = np.round(np.hstack([points, normals]), 9)
+    return rows[np.lexsort(rows.T[::-1])]
+
+
+def random_tiles(rng, v=4, t=12):
+    """Noisy tiles (many pixels where the smoothed gradient is small but not zero) whose
+    silhouettes touch every side of their tile, so neighbouring tiles of a stack meet."""
+    masks = (rng.random((v, t, t)) < 0.55).astype(np.uint8)
+    masks[:, 0, :] = masks[:, -1, :] = 1
+    masks[:, :, 0] = 1
+    return masks
+
+
 def test_an_isolated_tile_pixel_has_four_outline_points_with_the_crack_directions_as_normals():
     """One inside pixel: the smoothed mask's gradient vanishes at its centre, so each of its four
     outline points takes its crack's outward direction as normal."""
@@ -149,6 +250,42 @@ def test_outline_normals_of_a_square_point_outward_and_sit_on_the_pixel_sides():
     on_side = np.isclose(np.abs(away[:, 0]), 2.0) | np.isclose(np.abs(away[:, 1]), 2.0)
     assert on_side.all()
     np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0)
+
+
+def test_outline_normals_of_noisy_tiles_are_the_smoothed_mask_gradient_wherever_it_is_not_zero():
+    """Every outline point and its normal equal the loop oracle's, including the many points of a
+    noisy tile where the smoothed mask's gradient is small: only an exactly vanishing gradient
+    falls back to the crack's direction."""
+    rng = np.random.default_rng(41)
+    masks = random_tiles(rng)
+    boxes = np.array([[10.0, 20.0, 34.0, 44.0], [-5.5, 3.25, 18.5, 27.25], [100.0, 90.0, 112.0, 102.0],
+                      [40.0, 40.0, 76.0, 76.0]])
+    points, normals, owner = outline_points(masks, boxes)
+    small = 0
+    for i in range(len(masks)):
+        want = loop_outline(masks[i], boxes[i])
+        wp = np.array([p for p, _ in want])
+        wn = np.array([n for _, n in want])
+        got = owner == i
+        np.testing.assert_allclose(_sorted_rows(points[got], normals[got]), _sorted_rows(wp, wn), atol=1e-6,
+                                   err_msg=f"tile {i}")
+        mag = np.linalg.norm(smoothed_gradient(masks[i]), axis=-1)[masks[i] > 0]
+        small += np.count_nonzero((mag > 1e-9) & (mag < 0.2))
+    assert small > 0  # the case the test is about does occur
+
+
+def test_outline_points_of_a_tile_do_not_depend_on_the_other_tiles_of_the_stack():
+    """Tiles whose silhouettes touch their tile's sides, stacked: each tile's points and normals,
+    in order, are those of the tile scored alone (the smoothing never mixes two tiles)."""
+    rng = np.random.default_rng(42)
+    masks = random_tiles(rng, v=5, t=10)
+    masks[:, :, -1] = 1
+    boxes = np.array([[0.0, 0.0, 20.0, 20.0]] * 5) + np.arange(5)[:, None] * 7.0
+    points, normals, owner = outline_points(masks, boxes)
+    for i in range(len(masks)):
+        p1, n1, _ = outline_points(masks[i : i + 1], boxes[i : i + 1])
+        np.testing.assert_array_equal(points[owner == i], p1, err_msg=f"tile {i}")
+        np.testing.assert_array_equal(normals[owner == i], n1, err_msg=f"tile {i}")
 
 
 def test_in_image_and_nearest_pixel_follow_the_pixel_under_the_point():
@@ -189,6 +326,67 @@ def test_contour_score_of_a_silhouette_far_from_every_edge_weighs_its_terms_by_l
         lik.prepare(_square_frame())
         score = lik.score_batch(SilhouetteBatch(full, far, np.ones(1, bool)))[0]
         assert score == pytest.approx(np.exp(-lv * 1.0) * np.exp(-le * 8.0))
+
+
+def opencv_edges(frame, low, high, blur_sigma):
+    """OpenCV's Canny (L2 gradient) of the RGB frame's grey, blurred by ``blur_sigma`` px."""
+    grey = cv2.GaussianBlur(cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY), (0, 0), blur_sigma)
+    return cv2.Canny(grey, low, high, L2gradient=True) > 0
+
+
+def _pixel(point):
+    return int(np.floor(point[1] + 0.5)), int(np.floor(point[0] + 0.5))
+
+
+def loop_contour(edges, mask, box, search):
+    """(5.15) for one tile (λ_v = λ_e = 1) and the distance of each match: each outline point inside
+    the frame looks along its normal at 0, ±1, … ±search px for the nearest edge pixel."""
+    h, w = edges.shape
+    visible, found = 0, []
+    for p, n in loop_outline(mask, box):
+        if not (-0.5 <= p[0] < w - 0.5 and -0.5 <= p[1] < h - 0.5):
+            continue
+        visible += 1
+        for step in [0] + [s for k in range(1, search + 1) for s in (k, -k)]:
+            row, col = _pixel(p + step * n)
+            if 0 <= col < w and 0 <= row < h and edges[row, col]:
+                found.append(abs(step))
+                break
+    score = np.exp(-(visible - len(found)) / visible) * np.exp(-(np.mean(found) if found else float(search)))
+    return score, found
+
+
+def test_contour_search_starts_at_the_pixel_under_the_sample_point():
+    """A silhouette laid on the bright square's outline, and moved by up to two pixels: sample
+    points whose own pixel is an edge pixel match at distance 0; the scores are the loop
+    oracle's on the OpenCV edge map."""
+    frame = _square_frame()
+    edges = opencv_edges(frame, 50.0, 150.0, 1.0)
+    t = 50
+    mask = np.zeros((t, t), np.uint8)
+    mask[5:45, 5:45] = 1  # 40 × 40 tile pixels at 1 px each: the square when the box starts at (55, 35)
+    offsets = [(0.0, 0.0), (-1.0, 0.0), (1.0, 1.0), (0.5, -2.0), (-2.0, 0.5)]
+    boxes = np.array([[55.0 + dx, 35.0 + dy, 105.0 + dx, 85.0 + dy] for dx, dy in offsets])
+    masks = np.repeat(mask[None], len(boxes), axis=0)
+    lik = ContourLikelihood(FrameSize(), ContourConfig(search_px=6))
+    lik.prepare(frame)
+    got = lik.score_batch(SilhouetteBatch(masks, boxes, np.ones(len(boxes), bool)))
+    want = [loop_contour(edges, mask, b, 6) for b in boxes]
+    assert any(0 in found for _, found in want)  # some sample points sit on an edge pixel
+    np.testing.assert_allclose(got, [s for s, _ in want], rtol=1e-9, atol=0)
+
+
+def test_canny_edges_keep_weak_edges_only_where_they_join_strong_ones():
+    """A smooth random frame holds gradients between the two thresholds: the edge map is OpenCV's
+    Canny with both thresholds (hysteresis), after the configured blur, of the RGB frame's grey."""
+    rng = np.random.default_rng(44)
+    small = rng.integers(0, 256, (12, 16, 3), dtype=np.uint8)
+    frame = cv2.resize(small, (W, H), interpolation=cv2.INTER_CUBIC)
+    for cfg in (EdgeConfig(), EdgeConfig(canny_low=20.0, canny_high=120.0, blur_sigma=2.0)):
+        want = opencv_edges(frame, cfg.canny_low, cfg.canny_high, cfg.blur_sigma)
+        loose = opencv_edges(frame, cfg.canny_low, cfg.canny_low, cfg.blur_sigma)
+        assert np.count_nonzero(loose & ~want) > 0  # hysteresis drops some weak edges here
+        np.testing.assert_array_equal(canny_edges(frame, cfg), want)
 
 
 def test_a_silhouette_whose_outline_lies_off_the_frame_scores_zero():
