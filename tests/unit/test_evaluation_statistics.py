@@ -160,8 +160,9 @@ def test_summary_schema_roundtrip_and_rejection(tmp_path):
     del bad["variants"]["C4N2"]["rotation_deg"]["sd"]
     with pytest.raises(SummaryError):
         validate_summary(bad)
-    with pytest.raises(SummaryError):
-        validate_summary({"sequence": "s", "frames": "5", "variants": {}})
+    for frames in ("5", True, -1, 5.0):
+        with pytest.raises(SummaryError, match="frames: a non-negative int"):
+            validate_summary({"sequence": "s", "frames": frames, "variants": {}})
     for change in (lambda d: d.update(extra=1), lambda d: d["variants"]["C4N2"]["translation_m"].update(median="x"),
                    lambda d: d["variants"]["C4N2"].update(ms_per_frame="5")):
         bad = json.loads(json.dumps(doc))

@@ -152,7 +152,9 @@ def validate_summary(doc) -> None:
 
     need(isinstance(doc, dict) and set(doc) == {"sequence", "frames", "variants"},
          "summary needs exactly the keys sequence, frames, variants")
-    need(isinstance(doc["sequence"], str) and isinstance(doc["frames"], int), "sequence: str, frames: int")
+    frames = doc["frames"]
+    need(isinstance(doc["sequence"], str) and type(frames) is int and frames >= 0,
+         f"sequence: str, frames: a non-negative int (got {frames!r})")
     need(isinstance(doc["variants"], dict), "variants must be a mapping")
     for name, v in doc["variants"].items():
         need(isinstance(v, dict) and set(v) == {"translation_m", "rotation_deg", "lost_frames_pct", "ms_per_frame"},
