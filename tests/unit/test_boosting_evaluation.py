@@ -3,6 +3,7 @@
 import json
 import re
 
+import cv2
 import numpy as np
 import pytest
 
@@ -16,7 +17,7 @@ from uav_landing_vision.boosting.evaluation import (
     silhouette_roi,
 )
 from uav_landing_vision.evaluation.statistics import STAT_KEYS
-from uav_landing_vision.camera import load_camera_info_yaml
+from uav_landing_vision.camera import CameraModel, load_camera_info_yaml
 from uav_landing_vision.cli import main
 from uav_landing_vision.geometry import euler_zyx_to_quat
 from uav_landing_vision.model import fixed_wing_mesh
@@ -37,12 +38,45 @@ def test_closest_hypothesis_is_chosen_by_rotation_among_the_first_k():
     np.testing.assert_allclose(np.degrees(r_err[:, 2]), [-40.0, -20.0, -1.0], atol=1e-9)
 
 
-def test_positions_are_at_the_distance_and_in_view(camera):
-    p = sample_positions(camera, 5.0, 0.9, 500, np.random.default_rng(0))
-    np.testing.assert_allclose(np.linalg.norm(p, axis=1), 5.0)
-    uv = camera.project_pinhole(p)
-    r = camera.fx * 0.9 / 5.0
-    assert np.all((uv >= r - 1e-6) & (uv <= np.array([camera.width, camera.height]) - 1 - r + 1e-6))
+def sphere_image_extents(camera, centres, radius):
+    """Per centre, the (u, v) minima and maxima of 4 000 points of the sphere projected by OpenCV."""
+    k = np.arange(4000) + 0.5
+    z = 1.0 - 2.0 * k / len(k)
+    phi = np.pi * (3.0 - np.sqrt(5.0)) * k
+    points = radius * np.stack([np.sqrt(1 - z**2) * np.cos(phi), np.sqrt(1 - z**2) * np.sin(phi), z], axis=1)
+    lo, hi = [], []
+    for c in centres:
+        uv = cv2.projectPoints(points + c, np.zeros(3), np.zeros(3), camera.K, None)[0].reshape(-1, 2)
+        lo.append(uv.min(0))
+        hi.append(uv.max(0))
+    return np.array(lo), np.array(hi)
+
+
+@pytest.mark.parametrize("distance", [5.0, 15.0])
+def test_view_positions_keep_the_whole_sphere_in_the_image_and_reach_every_border(camera, distance):
+    """Off the axis a sphere's image is larger than fx·R/d: the sphere at each position stays
+    within the border pixel centres, and the positions spread until it nearly touches each side."""
+    radius = 0.92  # the shipped model's farthest vertex from its centre of gravity
+    p = sample_positions(camera, distance, radius, 400, np.random.default_rng(0))
+    np.testing.assert_allclose(np.linalg.norm(p, axis=1), distance)
+    lo, hi = sphere_image_extents(camera, p, radius)
+    size = np.array([camera.width - 1, camera.height - 1])
+    assert np.all(lo >= -0.05) and np.all(hi <= size + 0.05)
+    assert np.all(lo.min(0) < 10.0) and np.all(hi.max(0) > size - 10.0)
+
+
+def test_view_positions_follow_an_off_centre_principal_point_and_unequal_focal_lengths():
+    k = np.array([[900.0, 0.0, 250.0], [0.0, 700.0, 300.0], [0.0, 0.0, 1.0]])
+    other = CameraModel(640, 480, k, np.zeros(5))
+    p = sample_positions(other, 8.0, 1.0, 200, np.random.default_rng(1))
+    lo, hi = sphere_image_extents(other, p, 1.0)
+    assert np.all(lo >= -0.05) and np.all(hi <= np.array([639.05, 479.05]))
+    assert np.all(lo.min(0) < 10.0) and np.all(hi.max(0) > np.array([629.0, 469.0]))
+
+
+def test_view_placement_refuses_a_distance_at_which_the_sphere_does_not_fit(camera):
+    with pytest.raises(ValueError, match="does not fit in the 1280x720 image"):
+        sample_positions(camera, 1.0, 0.92, 5, np.random.default_rng(0))
 
 
 def test_background_and_roi(camera):

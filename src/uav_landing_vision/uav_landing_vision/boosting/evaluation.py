@@ -24,6 +24,7 @@ from .obb import FastConfig, obb_from_frame
 
 PLACEMENTS = ("axis", "view")
 BACKGROUND_FRAMES = 8
+MAX_PLACEMENT_DRAWS = 1000  # batches of pixels drawn for view placements before giving up
 
 
 def check_distances(distances) -> None:
@@ -73,14 +74,38 @@ def normal_backgrounds(camera: CameraModel, count: int, seed: int):
     return frames, rot.T @ background.sun, ImagingConfig().albedo
 
 
+def view_planes(camera: CameraModel) -> np.ndarray:
+    """Unit inward normals ``(4, 3)`` of the planes through the camera centre and the image's
+    border pixel centres (u = 0, u = width − 1, v = 0, v = height − 1): a point X projects inside
+    the image when every ``normal · X`` is positive, a sphere of radius R when each is ≥ R."""
+    k = camera.K
+    right, bottom = camera.width - 1.0, camera.height - 1.0
+    normals = np.stack([k[0], right * k[2] - k[0], k[1], bottom * k[2] - k[1]])
+    return normals / np.linalg.norm(normals, axis=1, keepdims=True)
+
+
 def sample_positions(camera: CameraModel, distance: float, radius: float, count: int,
                      rng: np.random.Generator) -> np.ndarray:
-    """Positions ``(count, 3)`` at ``distance`` on rays whose pixel keeps a ``radius`` sphere in view."""
-    r_px = camera.fx * radius / distance
-    lo = np.minimum([r_px, r_px], [camera.cx, camera.cy])
-    hi = np.maximum([camera.width - 1 - r_px, camera.height - 1 - r_px], [camera.cx, camera.cy])
-    rays = camera.backproject(rng.uniform(lo, hi, size=(count, 2)), 1.0)
-    return distance * rays / np.linalg.norm(rays, axis=1, keepdims=True)
+    """Positions ``(count, 3)`` at range ``distance`` on the rays of pixels drawn uniformly among
+    those whose ray keeps a ``radius`` sphere there wholly in view (:func:`view_planes`; off the
+    axis the sphere's image is an ellipse, larger than on it). ValueError when the sphere does
+    not fit on the principal ray."""
+    planes = view_planes(camera)
+    if not np.all(planes[:, 2] * distance >= radius):
+        raise ValueError(f"a {radius:g} m sphere at {distance:g} m does not fit in the "
+                         f"{camera.width}x{camera.height} image: no view placement there")
+    hi = np.array([camera.width - 1.0, camera.height - 1.0])
+    kept, found = [], 0
+    for _ in range(MAX_PLACEMENT_DRAWS):
+        rays = camera.backproject(rng.uniform(0.0, hi, size=(max(count, 256), 2)), 1.0)
+        positions = distance * rays / np.linalg.norm(rays, axis=1, keepdims=True)
+        positions = positions[np.all(positions @ planes.T >= radius, axis=1)]
+        kept.append(positions)
+        found += len(positions)
+        if found >= count:
+            return np.concatenate(kept)[:count]
+    raise ValueError(f"a {radius:g} m sphere at {distance:g} m fits in the image on too few rays: "
+                     f"{found} of {count} view placements in {MAX_PLACEMENT_DRAWS} draws")
 
 
 def silhouette_roi(alpha: np.ndarray):
