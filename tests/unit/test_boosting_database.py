@@ -1,4 +1,5 @@
-"""Pose database: (4.4) ranking and θ periodicity, sampling, file round trip and checks, self-query."""
+"""Pose database: entry checks, (4.1) positions, (4.4) ranking and θ periodicity, sampling, building with the
+configured settings, file round trip and checks, camera and model compatibility, self-query."""
 
 from pathlib import Path
 
@@ -12,13 +13,14 @@ from uav_landing_vision.boosting import (
     PoseDatabase,
     build_database,
     hypotheses_from_obb,
+    mesh_fingerprint,
     obb_distance,
     obb_from_mask,
     sample_orientations,
 )
 from uav_landing_vision.camera import CameraModel, load_camera_info_yaml
 from uav_landing_vision.geometry import geodesic_angle, quat_conjugate, quat_multiply, quat_to_euler_zyx, quat_to_matrix
-from uav_landing_vision.model import fixed_wing_mesh
+from uav_landing_vision.model import Mesh, fixed_wing_mesh
 from uav_landing_vision.resources import config_path, model_path
 
 
@@ -41,17 +43,56 @@ def synthetic(camera):
     return PoseDatabase(sample_orientations(n, (90, 90, 90), rng), obbs, distance=4.0, camera=camera, model="m")
 
 
+def _entries(count=3):
+    """``count`` poses, each with the box θ = 10°, centre (600, 300), 200 x 50 px: to edit."""
+    quats = sample_orientations(count, (90, 90, 90), np.random.default_rng(1))
+    return quats, np.tile([10.0, 600.0, 300.0, 200.0, 50.0], (count, 1))
+
+
 @pytest.mark.parametrize("column, value, message", [(3, -5.0, "w >= h > 0"), (4, 0.0, "w >= h > 0"),
-                                                   ("quat", 0.0, "unit quaternions"), ("quat", np.nan, "unit")])
+                                                   *[(c, v, "finite") for c in (0, 1, 2) for v in (np.nan, np.inf)],
+                                                   ("quat", 0.0, "unit quaternions"), ("quat", np.nan, "unit"),
+                                                   *[("quat scale", s, "unit quaternions") for s in (0.99, 1.01, 1.2)]])
 def test_entries_that_cannot_be_poses_or_boxes_are_refused(camera, column, value, message):
-    quats = sample_orientations(3, (90, 90, 90), np.random.default_rng(1))
-    obbs = np.tile([10.0, 600.0, 300.0, 200.0, 50.0], (3, 1))
+    """Boxes with sides out of order or not positive, or a non-finite angle or centre; rotations
+    that are not unit quaternions (1 % off unit length is already too far)."""
+    quats, obbs = _entries()
     if column == "quat":
         quats[1] = value
+    elif column == "quat scale":
+        quats[1] *= value
     else:
         obbs[1, column] = value
     with pytest.raises(DatabaseError, match=message):
         PoseDatabase(quats, obbs, distance=4.0, camera=camera, model="m")
+
+
+def test_an_empty_database_or_unequal_pose_and_box_counts_are_refused(camera):
+    quats, obbs = _entries()
+    with pytest.raises(DatabaseError, match="as many boxes as poses"):
+        PoseDatabase(quats[:0], obbs[:0], distance=4.0, camera=camera, model="m")
+    with pytest.raises(DatabaseError, match="as many boxes as poses"):
+        PoseDatabase(quats[:2], obbs, distance=4.0, camera=camera, model="m")
+
+
+def test_a_square_box_is_a_valid_entry(camera):
+    """w >= h admits w == h: a silhouette whose box is square (R = 1) is a pose like any other."""
+    quats, obbs = _entries(4)
+    obbs[2, 3:5] = 120.0
+    db = PoseDatabase(quats, obbs, distance=4.0, camera=camera, model="m")
+    idx, dist = db.query(obbs[2, 0], 1.0, 1)
+    assert idx[0] == 2 and dist[0] == pytest.approx(0.0, abs=1e-3)
+
+
+def test_entry_positions_are_on_the_optical_axis_at_the_render_distance(camera, synthetic):
+    """(4.1): every entry is at (0, 0, distance)."""
+    db = PoseDatabase(synthetic.quats, synthetic.obbs, distance=6.5, camera=camera, model="m")
+    np.testing.assert_array_equal(db.positions, np.tile([0.0, 0.0, 6.5], (len(db), 1)))
+
+
+def test_box_areas_are_long_side_times_short_side(synthetic):
+    obbs = synthetic.obbs.astype(float)
+    np.testing.assert_allclose(synthetic.areas, obbs[:, 3] * obbs[:, 4], rtol=1e-6)
 
 
 def test_distance_4_4_wraps_theta_every_180_degrees():
@@ -82,13 +123,26 @@ def test_query_near_0_finds_entries_near_180(camera):
     assert dist[0] == pytest.approx(1.0, abs=1e-4)
 
 
+def test_an_angle_just_below_zero_is_stored_as_zero_and_found_at_zero(camera):
+    """-1e-15 mod 180 rounds to exactly 180 in floating point, outside the periodic index's [0, 180)."""
+    quats, obbs = _entries(4)
+    obbs[0, 0] = -1e-15
+    db = PoseDatabase(quats, obbs, distance=4.0, camera=camera, model="m")
+    aspect = obbs[0, 3] / obbs[0, 4]
+    for theta in (0.0, 179.9999):
+        idx, dist = db.query(theta, aspect, 1)
+        assert idx[0] == 0
+        assert dist[0] == pytest.approx(obb_distance(theta, aspect, 0.0, aspect, db.aspect_weight), abs=1e-3)
+
+
 def test_query_clips_k_and_rejects_bad_input(synthetic):
     idx, _ = synthetic.query(10.0, 2.0, 10**6)
     assert len(idx) == len(synthetic) and len(set(idx.tolist())) == len(synthetic)
     with pytest.raises(ValueError):
         synthetic.query(10.0, 2.0, 0)
-    with pytest.raises(ValueError):
-        synthetic.query(np.nan, 2.0, 5)
+    for theta, aspect in [(np.nan, 2.0), (np.inf, 2.0), (10.0, np.nan), (10.0, np.inf)]:
+        with pytest.raises(ValueError, match="finite"):
+            synthetic.query(theta, aspect, 5)
 
 
 def test_orientations_are_uniform_euler_inside_the_interval():
@@ -120,9 +174,64 @@ def test_small_built_database_round_trips(tmp_path, camera, mesh):
     np.testing.assert_allclose(box, db.obbs[7], rtol=1e-5, atol=1e-3)
 
 
-def test_silhouettes_leaving_the_image_are_refused_not_stored_clipped(camera, mesh):
+def test_file_round_trip_keeps_the_image_size_range_and_weight(tmp_path, synthetic):
+    """A non-square image, unequal half-ranges and the aspect weight of load() survive the file."""
+    camera = CameraModel(640, 480, [[500.0, 0, 330.0], [0, 520.0, 230.0], [0, 0, 1]])
+    obbs = synthetic.obbs[:50].astype(float)
+    db = PoseDatabase(synthetic.quats[:50], obbs, distance=5.0, camera=camera, model="m",
+                      half_range_deg=(10.0, 20.0, 30.0))
+    back = PoseDatabase.load(db.save(tmp_path / "db.npz"), camera=camera, aspect_weight=2.5)
+    assert (back.camera.width, back.camera.height) == (640, 480)
+    assert back.half_range_deg == (10.0, 20.0, 30.0)
+    assert back.aspect_weight == 2.5
+    _, dist = back.query(40.0, 3.0, 50)
+    brute = obb_distance(40.0, 3.0, obbs[:, 0], obbs[:, 3] / obbs[:, 4], 2.5)
+    np.testing.assert_allclose(dist, np.sort(brute), rtol=1e-5)
+
+
+def test_build_uses_the_configured_distance_range_and_seed(camera, mesh):
+    """Entries are the seed's draws in the configured interval, rendered at the configured depth,
+    and the database records that depth and interval."""
+    from uav_landing_vision.render import Renderer
+
+    config = DatabaseConfig(count=6, distance=7.0, half_range_deg=(20.0, 30.0, 40.0), seed=11)
+    db = build_database(camera, mesh, config, progress=False)
+    assert db.distance == 7.0 and db.half_range_deg == (20.0, 30.0, 40.0) and len(db) == 6
+    expected = sample_orientations(6, (20.0, 30.0, 40.0), np.random.default_rng(11))
+    np.testing.assert_allclose(db.quats, expected, atol=1e-6)
+    euler = np.degrees(quat_to_euler_zyx(quat_multiply(db.quats.astype(float), quat_conjugate(NOMINAL_QUAT))))
+    assert np.all(np.abs(euler) <= np.array([20.0, 30.0, 40.0]) + 1e-3)
+    with Renderer(camera, mesh) as renderer:
+        box = obb_from_mask(renderer.silhouette_full(db.quats[2], [0.0, 0.0, 7.0]))
+    np.testing.assert_allclose(box, db.obbs[2], rtol=1e-5, atol=1e-3)
+    other = build_database(camera, mesh, DatabaseConfig(count=6, distance=7.0, half_range_deg=(20.0, 30.0, 40.0),
+                                                         seed=12), progress=False)
+    assert not np.allclose(other.quats, db.quats)
+
+
+class _OneSilhouette:
+    """Stands in for the OpenGL renderer: one hand-made silhouette for every pose."""
+
+    mask = None
+
+    def __init__(self, camera, mesh):
+        pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return None
+
+    def silhouette_full(self, quat, trans):
+        return self.mask.copy()
+
+
+def test_silhouettes_leaving_the_image_are_refused_not_stored_clipped(camera, mesh, monkeypatch):
     """At 1.5 m the 1.8 m span of the model exceeds the 720 px image height in some poses: their
-    boxes would be clipped by the image border, so their area A^i and the depth (4.5) wrong."""
+    boxes would be clipped by the image border, so their area A^i and the depth (4.5) wrong. A
+    silhouette touching any one border is refused; one a pixel off every border is kept."""
+    import uav_landing_vision.render as render
     from uav_landing_vision.render import Renderer
 
     renderer = Renderer(camera, mesh)
@@ -131,6 +240,20 @@ def test_silhouettes_leaving_the_image_are_refused_not_stored_clipped(camera, me
     assert any(m[[0, -1]].any() or m[:, [0, -1]].any() for m in masks)  # the oracle: some touch the border
     with pytest.raises(ValueError, match="leaves the 1280x720 image at Z = 1.5 m.*larger distance"):
         build_database(camera, mesh, DatabaseConfig(count=30, distance=1.5, seed=3), progress=False)
+    monkeypatch.setattr(render, "Renderer", _OneSilhouette)
+    for reach in [(slice(0, 400), slice(500, 700)), (slice(300, None), slice(500, 700)),  # top, bottom
+                  (slice(300, 400), slice(0, 700)), (slice(300, 400), slice(500, None))]:  # left, right
+        mask = np.zeros((camera.height, camera.width), bool)
+        mask[300:400, 500:700] = True
+        mask[reach] = True
+        monkeypatch.setattr(_OneSilhouette, "mask", mask)
+        with pytest.raises(ValueError, match="leaves the 1280x720 image at Z = 4 m"):
+            build_database(camera, mesh, DatabaseConfig(count=2), progress=False)
+    inside = np.zeros((camera.height, camera.width), bool)
+    inside[1:-1, 1:-1] = True
+    monkeypatch.setattr(_OneSilhouette, "mask", inside)
+    db = build_database(camera, mesh, DatabaseConfig(count=2), progress=False)
+    np.testing.assert_allclose(db.obbs[:, 3:], [[camera.width - 2, camera.height - 2]] * 2, atol=1e-3)
 
 
 @pytest.mark.parametrize("kwargs", [{"count": 0}, {"distance": 0.0}, {"distance": np.nan}, {"distance": np.inf},
@@ -185,6 +308,23 @@ def test_an_unreadable_database_is_not_called_corrupt(tmp_path, synthetic, monke
     monkeypatch.setattr(Path, "open", denied)
     with pytest.raises(DatabaseError, match="unreadable or corrupt: .*Permission denied"):
         PoseDatabase.load(path)
+
+
+def test_the_mesh_fingerprint_covers_the_faces_not_only_the_vertices(mesh):
+    """The same vertices joined by other faces are another model, with other silhouettes."""
+    half = Mesh(mesh.vertices, mesh.faces[: len(mesh.faces) // 2])
+    assert mesh_fingerprint(mesh) != mesh_fingerprint(half)
+    assert mesh_fingerprint(mesh) == mesh_fingerprint(Mesh(mesh.vertices.copy(), mesh.faces.copy()))
+
+
+@pytest.mark.parametrize("index, factor", [(0, 1.005), (1, 1.005), (2, 1.005), (3, 1.005), (1, 0.99)])
+def test_a_camera_differing_in_any_one_intrinsic_is_incompatible(camera, synthetic, index, factor):
+    """fx, fy, cx, cy each enter the boxes: a 0.5 % change of any one means another database."""
+    synthetic.check_compatible(camera)
+    k = camera.K.copy()
+    k[[0, 1, 0, 1][index], [0, 1, 2, 2][index]] *= factor
+    with pytest.raises(DatabaseError, match="camera"):
+        synthetic.check_compatible(CameraModel(camera.width, camera.height, k))
 
 
 def test_missing_corrupt_or_mismatched_files_are_clear_errors(tmp_path, camera, synthetic):

@@ -1,4 +1,5 @@
-"""OBB (4.2)–(4.3): synthetic rectangles and rotated shapes, angle convention, FAST in a frame."""
+"""OBB (4.2)–(4.3): synthetic rectangles, lines and rotated shapes, silhouettes in pieces, angle convention,
+FAST in a frame."""
 
 import cv2
 import numpy as np
@@ -47,6 +48,32 @@ def test_tall_rectangle_puts_long_side_first_at_90_degrees():
     assert (box.w, box.h) == pytest.approx((140.0, 20.0), abs=1e-3)
     assert _angle_diff(box.theta, 90.0) < 1e-3
     assert box.aspect > 1
+
+
+@pytest.mark.parametrize("horizontal", [True, False])
+def test_a_one_pixel_thick_line_of_pixels_is_a_box_one_pixel_thick(horizontal):
+    """Each pixel counts to its extent: a 40-pixel line is a 40 x 1 box, exactly 1 px thick, not degenerate."""
+    mask = np.zeros((30, 60), np.uint8)
+    if horizontal:
+        mask[12, 10:50] = 1
+    else:
+        mask[5:25, 33] = 1
+    box = obb_from_mask(mask)
+    assert box is not None
+    w, theta, centre = (40.0, 0.0, (29.5, 12.0)) if horizontal else (20.0, 90.0, (33.0, 14.5))
+    assert (box.w, box.h, box.x, box.y) == pytest.approx((w, 1.0, *centre), abs=1e-4)
+    assert _angle_diff(box.theta, theta) < 1e-4
+
+
+def test_a_silhouette_in_separate_pieces_is_boxed_as_a_whole():
+    """Thin parts may vanish at the pixel scale and split the UAV's silhouette: the box holds every piece
+    (oracle: the axis-aligned extent of two pieces side by side, the minimum-area box)."""
+    mask = np.zeros((100, 200), np.uint8)
+    mask[40:60, 20:70] = 1  # a wing
+    mask[45:55, 120:180] = 1  # the other, detached, and smaller
+    box = obb_from_mask(mask)
+    assert (box.w, box.h, box.x, box.y) == pytest.approx((160.0, 20.0, 99.5, 49.5), abs=1e-3)
+    assert _angle_diff(box.theta, 0.0) < 1e-3
 
 
 @pytest.mark.parametrize("theta", [0.0, 17.0, 45.0, 89.0, 91.0, 123.0, 179.0, 200.0, -30.0])
@@ -252,9 +279,12 @@ def test_fast_config_validation(kwargs):
 
 
 def test_a_box_under_a_pixel_thick_is_degenerate():
-    """Not collinear, but 0.5 px thick: no box (its area, hence the depth (4.5), is meaningless)."""
+    """Not collinear, but 0.5 px thick: no box (its area, hence the depth (4.5), is meaningless);
+    exactly 1 px thick is a box."""
     assert obb_from_points(np.array([[0.0, 0.0], [100.0, 0.0], [50.0, 0.5]])) is None
     assert obb_from_points(np.array([[0.0, 0.0], [100.0, 0.0], [50.0, 1.5]])) is not None
+    exactly_one = obb_from_points(np.array([[0.0, 0.0], [100.0, 0.0], [100.0, 1.0], [0.0, 1.0]]))
+    assert exactly_one is not None and (exactly_one.w, exactly_one.h) == pytest.approx((100.0, 1.0))
 
 
 def test_check_roi_rounds_and_clips_each_side():
