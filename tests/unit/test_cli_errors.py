@@ -258,10 +258,10 @@ def test_evaluation_commands_name_the_option_of_a_bad_number(tmp_path, monkeypat
             (["evaluate", "--bag", str(bags / "full"), "--seed", "-1"], "--seed must be non-negative, got -1"),
             (["eval-metrics", "--out", str(tmp_path), "--seed", "-1"], "--seed must be non-negative, got -1"),
             (["eval-metrics", "--out", str(tmp_path), "--distance", "inf"], "--distance must be finite"),
-            (["eval-optimisers", "--seed", "-1"], "seed must be non-negative, got -1"),
+            (["eval-optimisers", "--seed", "-1"], "seed must be a non-negative integer, got -1"),
             (["eval-optimisers", "--distances", "5", "inf"],
              r"distances must be finite and positive, got \(5.0, inf\)"),
-            (["eval-boosting", "--seed", "-1"], "seed must be non-negative, got -1"),
+            (["eval-boosting", "--seed", "-1"], "seed must be a non-negative integer, got -1"),
             (["eval-boosting", "--distances", "nan"], r"distances must be finite and positive, got \(nan,\)"),
             (["eval-boosting", "--aspect-weight", "0"], "aspect_weight must be positive and at most 10000, got 0.0"),
             (["eval-boosting", "--aspect-weight", "nan"], "aspect_weight must be positive and at most 10000, got nan"),
@@ -284,7 +284,7 @@ def test_detection_commands_refuse_a_negative_seed_at_once(tmp_path, monkeypatch
     for argv in (["make-detection-data", "--out", str(tmp_path / "new"), "--seed", "-1"],
                  ["train-detector", "--data", str(tmp_path / "data"), "--out", str(tmp_path / "run"), "--seed", "-1"],
                  ["train-verifier", "--data", str(tmp_path / "data"), "--out", str(tmp_path / "run"), "--seed", "-1"]):
-        _refused(argv, "seed must be non-negative, got -1")
+        _refused(argv, "seed must be a non-negative integer, got -1")
 
 
 def test_evaluations_refuse_distances_that_share_a_table(monkeypatch):

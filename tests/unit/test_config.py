@@ -1,12 +1,14 @@
 """Configuration loading: ROS 2 parameter files (scalars as rcl reads them) into validated dataclasses."""
 
 import math
+import re
 from dataclasses import dataclass, field
 from typing import Literal
 
+import numpy as np
 import pytest
 
-from uav_landing_vision.config import ConfigError, from_mapping, load_node_parameters
+from uav_landing_vision.config import ConfigError, check_seed, from_mapping, load_node_parameters
 
 
 @dataclass(frozen=True)
@@ -183,3 +185,37 @@ def test_a_missing_required_value_is_a_config_error():
     with pytest.raises(ConfigError, match="rate_hz"):
         from_mapping(Required, {})
     assert from_mapping(Required, {"rate_hz": 30}).rate_hz == 30.0
+
+
+@pytest.mark.parametrize("seed", [0, 7, np.int64(3), 2**63])
+def test_a_non_negative_integer_is_a_seed(seed):
+    assert check_seed(seed) == int(seed) and type(check_seed(seed)) is int
+
+
+@pytest.mark.parametrize("seed", [-1, np.int32(-2), True, False, 1.0, "3", None])
+def test_a_negative_bool_float_or_text_seed_is_refused(seed):
+    """True is an int to Python, and 1.0 would pass a >= 0 test: neither is a seed."""
+    with pytest.raises(ValueError, match=f"seed must be a non-negative integer, got {re.escape(repr(seed))}"):
+        check_seed(seed)
+
+
+def _seeded_configs():
+    from uav_landing_vision.boosting import DatabaseConfig
+    from uav_landing_vision.boosting.evaluation import BoostingEvalConfig
+    from uav_landing_vision.detection.dataset import DatasetConfig
+    from uav_landing_vision.detection.train import TrainConfig
+    from uav_landing_vision.detection.verifier_train import VerifierTrainConfig
+    from uav_landing_vision.tracking.optimiser_evaluation import OptimiserEvalConfig
+    from uav_landing_vision.tracking.upf import TrackerConfig
+
+    return [DatabaseConfig, BoostingEvalConfig, DatasetConfig, TrainConfig, VerifierTrainConfig, OptimiserEvalConfig,
+            TrackerConfig]
+
+
+@pytest.mark.parametrize("index", range(7))
+@pytest.mark.parametrize("seed", [-1, True, 2.0])
+def test_every_seeded_config_refuses_what_is_not_a_seed(index, seed):
+    config = _seeded_configs()[index]
+    with pytest.raises(ValueError, match="seed must be a non-negative integer"):
+        config(seed=seed)
+    assert config(seed=5).seed == 5

@@ -14,11 +14,23 @@ import typing
 from collections.abc import Hashable
 from pathlib import Path
 
+import numpy as np
 import yaml
 
 
 class ConfigError(ValueError):
     """A configuration file or value that cannot be used."""
+
+
+def check_seed(seed) -> int:
+    """A random seed as an int; ValueError unless a non-negative integer (bool and float refused).
+
+    numpy's own error names no option and comes only when the first generator is made, after
+    work may have started.
+    """
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    return int(seed)
 
 
 class UniqueKeyLoader(yaml.SafeLoader):

@@ -21,6 +21,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..camera import CameraModel
+from ..config import check_seed
 from ..geometry import euler_zyx_to_quat, quat_multiply
 from .obb import THETA_PERIOD_DEG, aspect_ratio, obb_from_mask
 
@@ -52,6 +53,7 @@ class DatabaseConfig:
         if not (np.isfinite(self.distance) and self.distance > 0):
             raise ValueError(f"database distance must be positive and finite, got {self.distance}")
         check_half_range(self.half_range_deg)
+        check_seed(self.seed)
 
 
 def check_half_range(half_range_deg) -> tuple[float, float, float]:

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..camera import CameraModel
+from ..config import check_seed
 from ..evaluation.statistics import ROW_NAMES, STAT_KEYS, error_statistics
 from ..geometry import euler_error, geodesic_angle
 from .database import ASPECT_WEIGHT, PoseDatabase, check_aspect_weight, sample_orientations
@@ -56,8 +57,7 @@ class BoostingEvalConfig:
         if self.samples < 1 or not self.top or min(self.top) < 1:
             raise ValueError(f"samples and top must be positive, got {self.samples} and {self.top}")
         check_distances(self.distances)
-        if self.seed < 0:
-            raise ValueError(f"seed must be non-negative, got {self.seed}")
+        check_seed(self.seed)
         check_aspect_weight(self.aspect_weight)
 
 

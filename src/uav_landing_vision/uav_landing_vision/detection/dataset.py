@@ -25,6 +25,7 @@ import cv2
 import numpy as np
 
 from ..camera import write_image
+from ..config import check_seed
 from ..geometry import euler_zyx_to_matrix, matrix_to_quat, quat_multiply, quat_normalise
 from .detector import box_iou
 
@@ -72,8 +73,7 @@ class DatasetConfig:
     jpeg_quality: int = 92
 
     def __post_init__(self):
-        if self.seed < 0:  # SeedSequence's own error names no option, and comes late
-            raise ValueError(f"seed must be non-negative, got {self.seed}")
+        check_seed(self.seed)
         unknown = set(self.families) - set(FAMILIES)
         if not self.families or unknown:
             raise ValueError(f"families must be a non-empty subset of {FAMILIES}, got {self.families}")

@@ -18,6 +18,7 @@ import numpy as np
 import torch
 from torch.nn import functional as F
 
+from ..config import check_seed
 from .dataset import read_labels
 from .detector import decode, letterbox, nms
 from .evaluation import average_precision, match_frame
@@ -55,8 +56,7 @@ class TrainConfig:
     init: str = ""
 
     def __post_init__(self):
-        if self.seed < 0:  # SeedSequence's own error names no option, and comes late
-            raise ValueError(f"seed must be non-negative, got {self.seed}")
+        check_seed(self.seed)
         if (self.epochs < 1 or self.batch < 1 or self.width < 8 or self.threads < 1 or self.loader_workers < 0
                 or self.max_images < 0):
             raise ValueError("need epochs ≥ 1, batch ≥ 1, width ≥ 8, threads ≥ 1, loader_workers ≥ 0 "

@@ -23,6 +23,7 @@ import numpy as np
 import torch
 from torch.nn import functional as F
 
+from ..config import check_seed
 from .dataset import read_labels
 from .detector import Detector, DetectorConfig, box_iou
 from .evaluation import average_precision
@@ -51,8 +52,7 @@ class VerifierTrainConfig:
     workers: int = 2  # mining processes
 
     def __post_init__(self):
-        if self.seed < 0:  # SeedSequence's own error names no option, and comes late
-            raise ValueError(f"seed must be non-negative, got {self.seed}")
+        check_seed(self.seed)
         if self.epochs < 1 or self.batch < 2 or self.width < 4 or self.threads < 1 or self.workers < 1:
             raise ValueError("need epochs ≥ 1, batch ≥ 2, width ≥ 4, threads ≥ 1, workers ≥ 1")
         check_optimiser_settings(self.lr, self.weight_decay)

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..boosting.evaluation import check_distances
+from ..config import check_seed
 from ..evaluation.statistics import ROW_NAMES, STAT_KEYS, error_statistics
 from ..geometry import euler_error, quat_normalise
 from .optimisation import OPTIMISERS, SECTION_6_6_NOISE, PFOConfig, make_optimiser
@@ -46,8 +47,7 @@ class OptimiserEvalConfig:
         if self.samples < 1 or self.particles < 2 or self.iterations < 1:
             raise ValueError("need samples >= 1, particles >= 2 and iterations >= 1")
         check_distances(self.distances)
-        if self.seed < 0:
-            raise ValueError(f"seed must be non-negative, got {self.seed}")
+        check_seed(self.seed)
         unknown = set(self.optimisers) - set(OPTIMISER_NAMES)
         if unknown or not self.optimisers:
             raise ValueError(f"optimisers must be among {OPTIMISER_NAMES}, got {self.optimisers}")

@@ -48,6 +48,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from ..config import check_seed
 from ..filters.motion import MotionFilterConfig
 from ..geometry import geodesic_angle, omega_quat, quat_multiply, quat_normalise
 from ..render.renderer import MAX_TILE
@@ -131,8 +132,7 @@ class TrackerConfig:
             raise ValueError(f"resampling must be one of {sorted(RESAMPLERS)}, got {self.resampling!r}")
         if self.optimiser not in OPTIMISERS:
             raise ValueError(f"optimiser must be one of {sorted(OPTIMISERS)}, got {self.optimiser!r}")
-        if not (isinstance(self.seed, (int, np.integer)) and self.seed >= 0):
-            raise ValueError(f"seed must be a non-negative integer, got {self.seed!r}")
+        check_seed(self.seed)
         if not 16 <= self.tile <= MAX_TILE:
             raise ValueError(f"tile must be 16 to {MAX_TILE} px, got {self.tile!r}")
         # Bounded above as well: the published covariance must stay a usable float32 (MAVLink).
