@@ -330,14 +330,17 @@ def test_tiny_run_has_the_json_schema(tmp_path, camera):
     assert one["stats"]["5"]["1"]["translation_m"]["x"]["sd"] is None  # one sample has none: null, not NaN
 
 
-def _fake_result(failures):
-    def cell(base):
-        return {"translation_m": {a: {s: base + i + 0.01 * j for j, s in enumerate(STAT_KEYS)}
-                                  for i, a in enumerate("xyz")},
-                "rotation_deg": {a: {s: base + 10 + i + 0.01 * j for j, s in enumerate(STAT_KEYS)}
-                                 for i, a in enumerate(("alpha", "beta", "gamma"))}}
+def fake_cell(base):
+    """A table cell whose every statistic tells where it is: base + axis index (+ 10 for the
+    rotation) + 0.01 × the statistic's row."""
+    return {"translation_m": {a: {s: base + i + 0.01 * j for j, s in enumerate(STAT_KEYS)}
+                              for i, a in enumerate("xyz")},
+            "rotation_deg": {a: {s: base + 10 + i + 0.01 * j for j, s in enumerate(STAT_KEYS)}
+                             for i, a in enumerate(("alpha", "beta", "gamma"))}}
 
-    return {"stats": {"5": {"10": cell(100), "25": cell(200)}}, "failures": {"5": failures}, "samples": 8}
+
+def _fake_result(failures):
+    return {"stats": {"5": {"10": fake_cell(100), "25": fake_cell(200)}}, "failures": {"5": failures}, "samples": 8}
 
 
 def test_tables_count_the_samples_with_a_box_and_group_columns_by_axis_then_k():

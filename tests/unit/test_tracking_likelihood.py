@@ -174,13 +174,13 @@ def oracle_distance_transform(frame, mask, box, sigma=50.0):
     return np.exp(-sigma * np.mean(d)) if d else 0.0
 
 
-def oracle_contour(frame, mask, box, search=15):
-    """(5.15) for one tile (λ_v = λ_e = 1): each outline point inside the frame looks along its
-    normal at 0, ±1, ±2, … ±search px for the nearest edge pixel; ē is search where none is found."""
-    h, w = frame.shape[:2]
-    edges = oracle_edges(frame)
+def contour_search(edges, outline, search):
+    """(5.15) for one tile (λ_v = λ_e = 1): each point of ``outline`` inside the frame looks along
+    its normal at 0, ±1, ±2, … ±search px for the nearest edge pixel (ē is search where none is
+    found). The score, the number of visible points and each match's distance."""
+    h, w = edges.shape
     visible, found = 0, []
-    for p, n in oracle_outline(mask, box):
+    for p, n in outline:
         if not (-0.5 <= p[0] < w - 0.5 and -0.5 <= p[1] < h - 0.5):
             continue
         visible += 1
@@ -190,8 +190,14 @@ def oracle_contour(frame, mask, box, search=15):
                 found.append(abs(step))
                 break
     if not visible:
-        return 0.0
-    return np.exp(-(visible - len(found)) / visible) * np.exp(-(np.mean(found) if found else float(search)))
+        return 0.0, 0, found
+    score = np.exp(-(visible - len(found)) / visible) * np.exp(-(np.mean(found) if found else float(search)))
+    return score, visible, found
+
+
+def oracle_contour(frame, mask, box, search=15):
+    """:func:`contour_search` on the oracle's edges and outline."""
+    return contour_search(oracle_edges(frame), oracle_outline(mask, box), search)[0]
 
 
 def test_edge_metrics_match_a_per_point_oracle(renderer):

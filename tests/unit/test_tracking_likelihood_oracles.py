@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
+from test_tracking_likelihood import contour_search, oracle_outline
 from uav_landing_vision.render import SilhouetteBatch
 from uav_landing_vision.tracking.likelihood import (
     ColourConfig,
@@ -186,26 +187,6 @@ def smoothed_gradient(mask):
     return np.stack([smooth[3:-3, 2:-4] - smooth[3:-3, 4:-2], smooth[2:-4, 3:-3] - smooth[4:-2, 3:-3]], axis=-1)
 
 
-def loop_outline(mask, box):
-    """[(point, outward normal)] of one tile by explicit loops: a point mid-way between each inside
-    tile pixel and each outside 4-neighbour; the normal is the smoothed mask's gradient at the
-    inside pixel, or the crack's direction where that gradient vanishes."""
-    t = mask.shape[0]
-    grad = smoothed_gradient(mask)
-    scale = (box[2] - box[0]) / t
-    out = []
-    for r in range(t):
-        for c in range(t):
-            for dr, dc in ((0, 1), (0, -1), (1, 0), (-1, 0)):
-                if not mask[r, c] or (0 <= r + dr < t and 0 <= c + dc < t and mask[r + dr, c + dc]):
-                    continue
-                g = grad[r, c]
-                n = g / np.linalg.norm(g) if np.linalg.norm(g) > 1e-9 else np.array([dc, dr], float)
-                p = np.array([box[0] + (c + 0.5 + 0.5 * dc) * scale, box[1] + (r + 0.5 + 0.5 * dr) * scale])
-                out.append((p, n))
-    return out
-
-
 def _sorted_rows(points, normals):
     rows = np.round(np.hstack([points, normals]), 9)
     return rows[np.lexsort(rows.T[::-1])]
@@ -263,7 +244,7 @@ def test_outline_normals_of_noisy_tiles_are_the_smoothed_mask_gradient_wherever_
     points, normals, owner = outline_points(masks, boxes)
     small = 0
     for i in range(len(masks)):
-        want = loop_outline(masks[i], boxes[i])
+        want = oracle_outline(masks[i], boxes[i])
         wp = np.array([p for p, _ in want])
         wn = np.array([n for _, n in want])
         got = owner == i
@@ -334,25 +315,9 @@ def opencv_edges(frame, low, high, blur_sigma):
     return cv2.Canny(grey, low, high, L2gradient=True) > 0
 
 
-def _pixel(point):
-    return int(np.floor(point[1] + 0.5)), int(np.floor(point[0] + 0.5))
-
-
 def loop_contour(edges, mask, box, search):
-    """(5.15) for one tile (λ_v = λ_e = 1) and the distance of each match: each outline point inside
-    the frame looks along its normal at 0, ±1, … ±search px for the nearest edge pixel."""
-    h, w = edges.shape
-    visible, found = 0, []
-    for p, n in loop_outline(mask, box):
-        if not (-0.5 <= p[0] < w - 0.5 and -0.5 <= p[1] < h - 0.5):
-            continue
-        visible += 1
-        for step in [0] + [s for k in range(1, search + 1) for s in (k, -k)]:
-            row, col = _pixel(p + step * n)
-            if 0 <= col < w and 0 <= row < h and edges[row, col]:
-                found.append(abs(step))
-                break
-    score = np.exp(-(visible - len(found)) / visible) * np.exp(-(np.mean(found) if found else float(search)))
+    """(5.15) for one tile on the loop oracle's outline: the score and each match's distance."""
+    score, _, found = contour_search(edges, oracle_outline(mask, box), search)
     return score, found
 
 

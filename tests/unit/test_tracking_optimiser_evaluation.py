@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from test_boosting_evaluation import fake_cell
 from uav_landing_vision.boosting import NOMINAL_QUAT, DatabaseConfig, build_database
 from uav_landing_vision.boosting import evaluation
 from uav_landing_vision.camera import load_camera_info_yaml
@@ -86,14 +87,8 @@ def test_every_method_has_the_tables_rows_per_distance_and_axis(result):
 
 
 def _fake_result(failures):
-    def cell(base):
-        return {"translation_m": {a: {s: base + i + 0.01 * j for j, s in enumerate(STAT_KEYS)}
-                                  for i, a in enumerate("xyz")},
-                "rotation_deg": {a: {s: base + 10 + i + 0.01 * j for j, s in enumerate(STAT_KEYS)}
-                                 for i, a in enumerate(("alpha", "beta", "gamma"))}}
-
-    return {"stats": {"5": {"boosting": cell(100), "pso": cell(200)}}, "failures": {"5": failures}, "samples": 9,
-            "best_likelihood": {"5": {"boosting": 0.25, "pso": 0.5}}}
+    return {"stats": {"5": {"boosting": fake_cell(100), "pso": fake_cell(200)}}, "failures": {"5": failures},
+            "samples": 9, "best_likelihood": {"5": {"boosting": 0.25, "pso": 0.5}}}
 
 
 def test_tables_count_the_samples_with_a_box_and_group_columns_by_method_then_axis():
