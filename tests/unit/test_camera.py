@@ -175,6 +175,17 @@ _K = "image_width: 1280\nimage_height: 720\ncamera_matrix: {rows: 3, cols: 3, da
         (f"{_K}distortion_coefficients: {{rows: 1, cols: 5, data: ['-0.3', 0, 0, 0, 0]}}\n",
          "'distortion_coefficients' must be a list of numbers"),
         (_K.replace("[900,", "[1" + "0" * 400 + ","), "'camera_matrix' must be a list of numbers"),  # OverflowError before
+        # Too many values, a scalar for a list, a missing height and a boolean width.
+        (_K.replace("0,0,1]", "0,0,1,0]"), "'camera_matrix' needs 9 values, has 10"),
+        (_K.replace("[900,0,640,0,900,360,0,0,1]", "900"), "'camera_matrix' must be a list of numbers, got 900"),
+        (_K.replace("image_height: 720\n", ""), "missing image_height"),
+        (_K.replace("image_width: 1280", "image_width: true"),
+         "'image_width' must be an integer number of pixels, got True"),
+        # A size that disagrees with the values: ROS's parser would read another count.
+        (f"{_K}distortion_coefficients: {{rows: 1, cols: 5, data: [-0.3, 0.1, 0, 0]}}\n",
+         "'distortion_coefficients' must be 1x4 for its 4 values, got 1x5"),
+        (f"{_K}distortion_coefficients: {{rows: 5, cols: 1, data: [-0.3, 0.1, 0, 0, 0]}}\n",
+         "'distortion_coefficients' must be 1x5 for its 5 values, got 5x1"),
     ],
 )
 def test_bad_yaml_is_a_clear_error(tmp_path, text, message):
@@ -355,3 +366,179 @@ def test_coefficients_without_a_distortion_model_are_refused(tmp_path):
                     "distortion_coefficients: {rows: 1, cols: 4, data: [-0.05, 0.01, -0.002, 0.0005]}\n")
     with pytest.raises(CameraInfoError, match="no distortion_model"):
         load_camera_info_yaml(path)
+
+
+def test_a_side_of_max_image_side_is_taken_in_height_too_and_a_zero_side_is_refused():
+    """Both sides may reach MAX_IMAGE_SIDE, and a side of 0 px is refused for its size, not for a
+    field of view."""
+    assert CameraModel(480, 16384, [[5000, 0, 240], [0, 5000, 8192], [0, 0, 1]]).height == 16384
+    for width, height in ((0, 480), (640, 0)):
+        with pytest.raises(ValueError, match="1..16384 px a side"):
+            CameraModel(width, height, [[500, 0, 0], [0, 500, 0], [0, 0, 1]])
+
+
+@pytest.mark.parametrize("k, message", [
+    ([[-800, 0, 320], [0, 800, 240], [0, 0, 1]], "not an intrinsic matrix"),
+    ([[0, 0, 320], [0, 800, 240], [0, 0, 1]], "not an intrinsic matrix"),
+    ([[800, 0, 320], [0, 800, 240], [0, 1, 1]], "not an intrinsic matrix"),
+    ([[800, -3, 320], [0, 800, 240], [0, 0, 1]], "skew"),
+    ([[np.inf, 0, 320], [0, 800, 240], [0, 0, 1]], "finite 3x3"),
+    ([[800, 0, np.nan], [0, 800, 240], [0, 0, 1]], "finite 3x3"),
+])
+def test_each_entry_of_k_is_checked_for_its_own_reason(k, message):
+    """A non-positive fx, a non-zero K[2, 1], a negative skew or a non-finite entry: each named."""
+    with pytest.raises(ValueError, match=message):
+        CameraModel(640, 480, k)
+
+
+def test_the_principal_point_may_lie_on_any_image_border_but_cy_not_beyond_the_height():
+    """0 ≤ cx ≤ width and 0 ≤ cy ≤ height, each against its own side."""
+    assert CameraModel(640, 480, [[500, 0, 640], [0, 500, 0], [0, 0, 1]]).cx == 640
+    with pytest.raises(ValueError, match=r"principal point \(320, 500\) lies outside"):
+        CameraModel(640, 480, [[500, 0, 320], [0, 500, 500], [0, 0, 1]])  # inside the width, beyond the height
+
+
+@pytest.mark.parametrize("axis", [0, 1])
+def test_the_field_of_view_limits_hold_on_either_axis(axis):
+    """2 atan(side / 2f) just inside 0.01°..179° is a lens; just outside it is not."""
+    size = (640, 480)
+
+    def camera(fov_deg):
+        f = [500.0, 500.0]
+        f[axis] = size[axis] / 2 / np.tan(np.radians(fov_deg) / 2)
+        return CameraModel(*size, [[f[0], 0, 320], [0, f[1], 240], [0, 0, 1]])
+
+    camera(178.9), camera(0.0105)
+    for fov in (179.1, 0.0095):
+        with pytest.raises(ValueError, match="field of view"):
+            camera(fov)
+
+
+def test_sizes_are_whole_pixels_and_stored_as_python_ints(tmp_path):
+    """A float size is refused; numpy integers (e.g. from an image's shape) are taken as int, so
+    that the camera can be written as YAML."""
+    with pytest.raises(ValueError, match="must be integers"):
+        CameraModel(640.0, 480, GENERAL.K)
+    camera = CameraModel(np.int64(640), np.int32(480), GENERAL.K, GENERAL.dist)
+    assert type(camera.width) is int and type(camera.height) is int
+    save_camera_info_yaml(camera, tmp_path / "cam.yaml")
+    again = load_camera_info_yaml(tmp_path / "cam.yaml")
+    assert (again.width, again.height) == (640, 480)
+
+
+def test_the_distortion_coefficients_are_read_only():
+    with pytest.raises(ValueError):
+        GENERAL.dist[0] = 0.0
+
+
+@pytest.mark.parametrize("name", ["general", "rational"])
+def test_undistort_points_converges_at_the_raw_image_corners(name):
+    """The raw image's corners and edge midpoints, where the lens bends most: re-projected by
+    cv2.projectPoints, their rectified points land back on them to 1e-6 px."""
+    camera = {"general": CameraModel(640, 480, GENERAL.K, [-0.4, 0.2, 0.001, -0.002, -0.05]), "rational": RATIONAL}[name]
+    uv = np.array([[0.0, 0.0], [639.0, 0.0], [0.0, 479.0], [639.0, 479.0], [320.0, 0.0], [0.0, 240.0]])
+    rect = camera.undistort_points(uv)
+    rays = np.hstack([(rect - [camera.cx, camera.cy]) / [camera.fx, camera.fy], np.ones((len(uv), 1))])
+    back, _ = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), camera.K, camera.dist)
+    np.testing.assert_allclose(back.reshape(-1, 2), uv, atol=1e-6)
+
+
+def test_a_camera_matrix_given_as_data_alone_is_read(tmp_path):
+    """rows and cols may be left out of a block whose data has the right count."""
+    path = tmp_path / "camera.yaml"
+    path.write_text("image_width: 640\nimage_height: 480\ncamera_matrix: {data: [500, 0, 320, 0, 510, 240, 0, 0, 1]}\n")
+    np.testing.assert_array_equal(load_camera_info_yaml(path).K, [[500, 0, 320], [0, 510, 240], [0, 0, 1]])
+
+
+
+def test_a_yaml_without_a_distortion_model_reads_its_coefficients_as_plumb_bob(tmp_path):
+    """Older calibration files have no distortion_model key: their five coefficients are plumb_bob's
+    (an explicit empty model, as a CameraInfo message has it, is refused instead)."""
+    path = tmp_path / "camera.yaml"
+    path.write_text(f"{_K}distortion_coefficients: {{rows: 1, cols: 5, data: [-0.3, 0.1, 0.001, -0.002, 0.0]}}\n")
+    camera = load_camera_info_yaml(path)
+    assert camera.distortion_model == "plumb_bob"
+    np.testing.assert_array_equal(camera.dist, [-0.3, 0.1, 0.001, -0.002, 0.0])
+
+
+def test_a_saved_yaml_has_rows_times_cols_of_each_block_and_an_identity_r(camera, tmp_path):
+    """ROS's parser reads rows x cols values of each block: D's block says its own length."""
+    import yaml
+
+    save_camera_info_yaml(camera, tmp_path / "cam.yaml")
+    doc = yaml.safe_load((tmp_path / "cam.yaml").read_text())
+    for key in ("camera_matrix", "distortion_coefficients", "rectification_matrix", "projection_matrix"):
+        assert doc[key]["rows"] * doc[key]["cols"] == len(doc[key]["data"]), key
+    assert doc["distortion_coefficients"]["cols"] == camera.dist.size
+    np.testing.assert_array_equal(camera_info_fields(camera)["r"], np.eye(3).ravel())
+
+
+def test_some_zero_coefficients_without_a_distortion_model_are_still_refused():
+    """One non-zero coefficient is enough to need a model that says how to read it."""
+    with pytest.raises(CameraInfoError, match="2 non-zero distortion coefficients but no distortion_model"):
+        camera_from_info_fields(640, 480, "", [-0.3, 0.1, 0.0, 0.0, 0.0], GENERAL.K.ravel())
+
+
+def test_an_all_zero_r_is_taken_and_a_k_of_another_size_refused(tmp_path):
+    """Drivers without rectification leave R all zeros (read as none, in a message and in a file
+    alike); a K that is not 9 values (e.g. P's 12) is no intrinsic matrix."""
+    camera = camera_from_info_fields(640, 480, "plumb_bob", [0] * 5, GENERAL.K.ravel(), [0.0] * 9)
+    np.testing.assert_array_equal(camera.K, GENERAL.K)
+    (tmp_path / "zero_r.yaml").write_text(f"{_K}rectification_matrix: {{rows: 3, cols: 3, data: {[0.0] * 9}}}\n")
+    assert load_camera_info_yaml(tmp_path / "zero_r.yaml").K[0, 0] == 900.0
+    with pytest.raises(CameraInfoError, match="camera_info K is missing"):
+        camera_from_info_fields(640, 480, "plumb_bob", [0] * 5, np.hstack([GENERAL.K, np.zeros((3, 1))]).ravel())
+
+
+def test_a_region_of_interest_offset_in_y_alone_is_refused():
+    with pytest.raises(CameraInfoError, match=r"region of interest 640x480\+0\+20"):
+        camera_from_info_msg(_info_msg(roi=(0, 20, 640, 480)))
+
+
+def _calibration_msg(**changes):
+    """:func:`_info_msg` with the fields named changed (``roi_*``: those of its region of interest)."""
+    msg = _info_msg()
+    for name, value in changes.items():
+        setattr(msg.roi if name.startswith("roi_") else msg, name.removeprefix("roi_"), value)
+    return msg
+
+
+@pytest.mark.parametrize("changes", [{"k": [510.0, 0, 320, 0, 505, 240, 0, 0, 1]}, {"d": [-0.2, 0.05, 0, 0, 0]}])
+def test_a_calibration_of_other_k_or_d_values_is_taken(changes):
+    """Same sizes and model, other K or D values: a new calibration, not a repeat."""
+    from uav_landing_vision.nodes.calibration import Calibration
+
+    calibration = Calibration()
+    assert calibration.update(_calibration_msg())
+    assert calibration.update(_calibration_msg(**changes))
+    expected = camera_from_info_msg(_calibration_msg(**changes))
+    np.testing.assert_array_equal(calibration.camera.K, expected.K)
+    np.testing.assert_array_equal(calibration.camera.dist, expected.dist)
+
+
+def test_a_calibration_whose_roi_height_alone_changes_is_checked_again():
+    """A region of interest of 0 x 480 is a crop, refused, not the repeat of the full image's."""
+    from uav_landing_vision.nodes.calibration import Calibration
+
+    calibration = Calibration()
+    assert calibration.update(_calibration_msg())
+    with pytest.raises(CameraInfoError, match="region of interest 0x480"):
+        calibration.update(_calibration_msg(roi_height=480))
+
+
+def test_a_calibration_is_handed_to_use_before_it_is_taken():
+    """use(camera) switches the node; if it refuses, the camera in use stays and the same message is tried again."""
+    from uav_landing_vision.nodes.calibration import Calibration
+
+    calibration, used = Calibration(), []
+    assert calibration.update(_calibration_msg(), use=used.append)
+    assert [c.fx for c in used] == [500.0] and calibration.camera is used[0]
+
+    def refuse(camera):
+        raise CameraInfoError("the node cannot switch")
+
+    other = _calibration_msg(k=[520.0, 0, 320, 0, 520, 240, 0, 0, 1])
+    with pytest.raises(CameraInfoError, match="cannot switch"):
+        calibration.update(other, use=refuse)
+    assert calibration.camera.fx == 500.0 and calibration.refused == "the node cannot switch"
+    assert calibration.update(other, use=used.append) and calibration.camera.fx == 520.0 == used[-1].fx

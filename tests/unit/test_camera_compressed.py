@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
-from uav_landing_vision.camera import decode_compressed
+from uav_landing_vision.camera import decode_compressed, write_image
 from uav_landing_vision.camera.model import MAX_IMAGE_SIDE
 
 
@@ -74,6 +74,7 @@ def _jpeg_header(width: int, height: int) -> bytes:
     (b"\xff\xd8\xff not really a jpeg", "jpeg", "cannot decode the compressed image (21 bytes"),
     (None, "16UC1; png compressed", "has uint16 pixels, expected 8-bit"),
     (b"\x00" * 16, "16UC1; compressedDepth png", "is a depth image, not a camera frame"),
+    (b"\x00" * 16, "16UC1; compressed Depth png", "is a depth image, not a camera frame"),
 ])
 def test_what_cannot_be_a_camera_frame_is_refused_by_name(data, fmt, message):
     if data is None:
@@ -105,6 +106,36 @@ def test_a_png_over_the_side_limit_in_either_dimension_is_refused(shape):
         decode_compressed(data, "png")
 
 
-def test_a_png_of_the_side_limit_is_decoded():
-    pixels, encoding = decode_compressed(_encode(".png", np.zeros((MAX_IMAGE_SIDE, 1), np.uint8)), "png")
-    assert pixels.shape == (MAX_IMAGE_SIDE, 1) and encoding == "mono8"
+@pytest.mark.parametrize("shape", [(MAX_IMAGE_SIDE, 1), (1, MAX_IMAGE_SIDE)])
+def test_a_png_of_the_side_limit_is_decoded(shape):
+    pixels, encoding = decode_compressed(_encode(".png", np.zeros(shape, np.uint8)), "png")
+    assert pixels.shape == shape and encoding == "mono8"
+
+
+def test_write_image_round_trips_rgb_through_cv2_imread(tmp_path):
+    """An RGB array written as PNG reads back, by cv2.imread (BGR), as the same pixels."""
+    rgb = _frame(5)
+    write_image(tmp_path / "frame.png", rgb)
+    np.testing.assert_array_equal(cv2.imread(str(tmp_path / "frame.png"))[..., ::-1], rgb)
+
+
+def test_write_image_into_a_missing_folder_is_an_os_error(tmp_path):
+    with pytest.raises(OSError, match="cannot write the image"):
+        write_image(tmp_path / "missing" / "frame.png", _frame())
+
+
+def test_compressed_to_numpy_checks_the_size_and_names_the_message_format():
+    """The node-side conversion passes the expected size and the message's format on, and
+    raises ImageError."""
+    from sensor_msgs.msg import CompressedImage
+
+    from uav_landing_vision.nodes.image import ImageError, compressed_to_numpy
+
+    msg = CompressedImage(format="bgr8; png compressed bgr8", data=_encode(".png", _frame()))
+    pixels, encoding = compressed_to_numpy(msg, size=(64, 48))
+    assert encoding == "bgr8"
+    np.testing.assert_array_equal(pixels, _frame())
+    with pytest.raises(ImageError, match="compressed image is 64x48, expected 32x24"):
+        compressed_to_numpy(msg, size=(32, 24))
+    with pytest.raises(ImageError, match="format 'rgb8; jpeg compressed bgr8'"):
+        compressed_to_numpy(CompressedImage(format="rgb8; jpeg compressed bgr8", data=b"\xff\xd8\xff garbage"))

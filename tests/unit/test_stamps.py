@@ -33,3 +33,9 @@ def test_an_age_is_within_a_limit_up_to_the_nanosecond(limit_s):
     limit_ns = round(limit_s * 1e9)
     assert within_age(0, limit_s) and within_age(limit_ns, limit_s)
     assert not within_age(limit_ns + 1, limit_s) and not within_age(-1, limit_s)
+
+
+@pytest.mark.parametrize("limit_s, limit_ns", [(1.001, 1_001_000_000), (2.01, 2_010_000_000), (4.27, 4_270_000_000)])
+def test_a_limit_whose_float_product_falls_short_of_its_nanoseconds_still_reaches_them(limit_s, limit_ns):
+    """1.001 * 1e9 is 1000999999.9999999 in floats: the limit is the nearest nanosecond, not the one below."""
+    assert within_age(limit_ns, limit_s) and not within_age(limit_ns + 1, limit_s)

@@ -83,13 +83,17 @@ def load_camera_info_yaml(path, frame_id: str = DEFAULT_FRAME_ID) -> CameraModel
     if not isinstance(dist_entry, dict) or "data" not in dist_entry:
         raise CameraInfoError(f"{path}: 'distortion_coefficients' must be a mapping with rows, cols and data")
     dist = _numbers(dist_entry["data"], "distortion_coefficients", str(path))
+    shape = (dist_entry.get("rows", 1), dist_entry.get("cols", dist.size))
+    if shape != (1, dist.size):  # ROS's own parser reads rows x cols values
+        raise CameraInfoError(f"{path}: 'distortion_coefficients' must be 1x{dist.size} for its {dist.size} values, "
+                              f"got {shape[0]}x{shape[1]}")
     try:
         model = _distortion_model(doc.get("distortion_model", "plumb_bob"), dist)
     except CameraInfoError as exc:
         raise CameraInfoError(f"{path}: {exc}") from exc
     if "rectification_matrix" in doc:
         R = _matrix(doc, "rectification_matrix", 3, 3, str(path))
-        if not np.allclose(R, np.eye(3)):
+        if np.any(R) and not np.allclose(R, np.eye(3)):  # all zeros: none, as in a message
             raise CameraInfoError(f"{path}: a rectification rotation (stereo) is not supported; it must be identity")
     if "projection_matrix" in doc:
         _matrix(doc, "projection_matrix", 3, 4, str(path))  # unused (rectification keeps K), but well-formed
