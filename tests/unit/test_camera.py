@@ -415,10 +415,11 @@ def test_the_field_of_view_limits_hold_on_either_axis(axis):
 
 
 def test_sizes_are_whole_pixels_and_stored_as_python_ints(tmp_path):
-    """A float size is refused; numpy integers (e.g. from an image's shape) are taken as int, so
-    that the camera can be written as YAML."""
-    with pytest.raises(ValueError, match="must be integers"):
-        CameraModel(640.0, 480, GENERAL.K)
+    """A float or bool size is refused (True passed an int test as a 1 px side); numpy integers
+    (e.g. from an image's shape) are taken as int, so that the camera can be written as YAML."""
+    for width, height in [(640.0, 480), (True, 480), (640, np.True_)]:
+        with pytest.raises(ValueError, match="must be integers"):
+            CameraModel(width, height, [[500, 0, 0.5], [0, 500, 240], [0, 0, 1]])
     camera = CameraModel(np.int64(640), np.int32(480), GENERAL.K, GENERAL.dist)
     assert type(camera.width) is int and type(camera.height) is int
     save_camera_info_yaml(camera, tmp_path / "cam.yaml")

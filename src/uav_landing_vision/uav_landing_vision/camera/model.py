@@ -41,7 +41,7 @@ class CameraModel:
     def __post_init__(self):
         K = np.array(self.K, dtype=float)
         dist = np.array(self.dist, dtype=float).ravel()
-        if not (isinstance(self.width, (int, np.integer)) and isinstance(self.height, (int, np.integer))):
+        if not all(isinstance(n, (int, np.integer)) and not isinstance(n, bool) for n in (self.width, self.height)):
             raise ValueError(f"camera width/height must be integers, got {self.width!r}, {self.height!r}")
         if not (0 < self.width <= MAX_IMAGE_SIDE and 0 < self.height <= MAX_IMAGE_SIDE):
             raise ValueError(f"camera size must be 1..{MAX_IMAGE_SIDE} px a side, got {self.width}x{self.height}")
