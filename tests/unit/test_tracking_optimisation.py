@@ -293,6 +293,17 @@ def test_gabf_returns_a_single_particle_as_it_came():
         lambda: GAbFConfig(t_min=0.5, t_coarse=0.3),
         lambda: GAbFConfig(top_a=1),
         lambda: GAbFConfig(fine_sigma_deg=(15.0, 0.0, 15.0)),
+        lambda: PFOConfig(phase_length=0),
+        lambda: PFOConfig(dt=opt.MAX_DT * 1.5),
+        lambda: PFOConfig(noise_trans_sigma_m=(opt.MAX_STD * 2, 0.1, 0.1)),
+        lambda: PFOConfig(noise_rate_sigma=(1.0, opt.MAX_STD * 2, 1.0)),
+        lambda: PSOConfig(inertia=1.0),  # ϖ < 1
+        lambda: ConstrictedPSOConfig(c1=2.0, c2=2.0),  # (5.22) needs φ > 4, strictly
+        lambda: ConstrictedPSOConfig(k=1.5),  # k in (0, 1]
+        lambda: GAbFConfig(top_b=1),
+        lambda: GAbFConfig(t_min=0.3, t_coarse=0.3),  # T_min < T_coarse, strictly
+        lambda: GAbFConfig(fine_steps=0),
+        lambda: GAbFConfig(max_restarts=-1),
     ],
 )
 def test_invalid_configs_raise(make):
@@ -352,3 +363,68 @@ def test_gabf_copes_with_a_resampled_input_of_one_repeated_pose():
     refined = GAbF().run(one, counter, np.random.default_rng(0), 30)
     assert len(refined) == M and set(counter.batches) == {M}
     assert refined.weight.max() > objective(one)[0]
+
+
+def test_objective_output_of_the_wrong_shape_raises_even_with_m_values():
+    """One likelihood per particle, shape (M,) exactly (not M values in another shape), none negative."""
+    for optimiser in (PFO(), PSO(), GAbF()):
+        with pytest.raises(ValueError, match="objective returned shape"):
+            optimiser.run(start(), lambda p: np.ones((len(p), 1)), np.random.default_rng(0), 1)
+    with pytest.raises(ValueError, match="non-negative"):
+        PSO().run(start(), lambda p: np.full(len(p), -0.5), np.random.default_rng(0), 1)
+
+
+def test_configs_on_the_edges_of_their_ranges_are_accepted():
+    """The bounds are inclusive where documented so: Δt and σ at their limits, k = 1, ϖ = 0, one
+    neighbour, top_a = top_b = 2, no restarts, δ = T_min = 0."""
+    PFOConfig(dt=opt.MAX_DT, noise_trans_sigma_m=(opt.MAX_STD,) * 3, phase_length=1)
+    PSOConfig(inertia=0.0, neighbours=1)
+    ConstrictedPSOConfig(k=1.0, c1=2.0, c2=2.0 + 1e-9)
+    GAbFConfig(top_a=2, top_b=2, max_restarts=0, delta=0.0, t_min=0.0)
+
+
+def test_pfo_keeps_every_particle_once_when_every_score_is_zero():
+    """Nothing to resample on: each particle is carried once (moved by ζ), weighted 0."""
+    refined = PFO().run(start(), lambda p: np.zeros(len(p)), np.random.default_rng(0), 3)
+    np.testing.assert_array_equal(refined.state["id"], np.arange(M))
+    np.testing.assert_array_equal(refined.weight, np.zeros(M))
+
+
+@pytest.mark.parametrize("schedule, trans, rot_deg", [("3phase", [0.05, 0.05, 0.01], 15.0),
+                                                      ("iterative", [0.005] * 3, 17.0)])
+def test_pfo_first_iteration_uses_the_first_row_of_its_schedule(schedule, trans, rot_deg):
+    """Iterations count from I = 1: the first PFO move of the 3Phase schedule has the first row's
+    σ (Tables 6.6–6.7), the iterative one 18 − 1 = 17°."""
+    m = 4000
+    p = start(m=m)
+    cfg = PFOConfig(schedule=schedule, resampling="minimum_sampling", phase_length=1)
+    moved = PFO(cfg).run(p, lambda s: np.ones(len(s)), np.random.default_rng(5), 1)
+    np.testing.assert_allclose(np.std(moved.pos - p.pos, axis=0), trans, rtol=0.06)
+    turns = opt.rotvec_between(p.quat, moved.quat)
+    np.testing.assert_allclose(np.degrees(np.std(turns, axis=0)), [rot_deg] * 3, rtol=0.06)
+
+
+def test_pfo_resamples_with_the_configured_scheme(monkeypatch):
+    """Each PFO iteration resamples with ``PFOConfig.resampling`` (the scheme named in the call)."""
+    from uav_landing_vision.tracking.resampling import resample
+
+    names = []
+
+    def spy(name, weights, rng, **options):
+        names.append(name)
+        return resample(name, weights, rng, **options)
+
+    monkeypatch.setattr(opt, "resample", spy)
+    PFO(PFOConfig(resampling="multinomial")).run(start(), objective, np.random.default_rng(0), 3)
+    assert names == ["multinomial"] * 3
+
+
+def test_make_optimiser_builds_the_named_optimiser_pfo_with_the_given_settings():
+    """Each name gives its optimiser of §5.5: PFO with the settings given, the others with their own."""
+    cfg = PFOConfig(schedule="iterative")
+    pfo = opt.make_optimiser("pfo", cfg)
+    assert type(pfo) is PFO and pfo.config == cfg
+    for name, kind, config in (("pso", PSO, PSOConfig()), ("constricted_pso", ConstrictedPSO, ConstrictedPSOConfig()),
+                               ("gabf", GAbF, GAbFConfig())):
+        made = opt.make_optimiser(name, cfg)
+        assert type(made) is kind and made.config == config

@@ -112,3 +112,49 @@ def test_mean_pose_is_the_weighted_mean_and_the_scatter_matrix_mode():
     assert mean_quat[3] >= 0.0
     flipped = rot.as_quat() * np.where(rng.random(30) < 0.5, -1.0, 1.0)[:, None]
     np.testing.assert_allclose(ParticleSet.from_poses(pos, flipped, weight).mean_pose()[1], mean_quat, atol=1e-12)
+
+
+def test_quaternions_off_unit_norm_by_more_than_a_rounding_error_are_refused():
+    """A quaternion 0.1 % off unit norm is no rotation; one off by a rounding error is kept."""
+    q = np.array([[0.0, 0.0, 0.0, 1.001]])
+    with pytest.raises(ValueError, match="unit norm"):
+        ParticleSet.from_poses(np.zeros((1, 3)), q)
+    p = ParticleSet.from_poses(np.zeros((1, 3)), np.array([[0.0, 0.0, 0.0, 1.0 + 1e-9]]))
+    assert len(p) == 1
+
+
+def test_state_with_more_rows_than_particles_is_refused():
+    """Every state array has exactly M rows, one per particle."""
+    with pytest.raises(ValueError, match="leading axis"):
+        make(m=5, tag=np.arange(6))
+
+
+def test_state_arrays_are_copied():
+    """The set owns its per-particle state: changing the caller's array afterwards changes nothing."""
+    tag = np.arange(5)
+    p = make(m=5, tag=tag)
+    tag[0] = 99
+    np.testing.assert_array_equal(p.state["tag"], np.arange(5))
+
+
+def test_from_poses_is_at_rest_with_uniform_normalised_weights_and_keeps_state():
+    """``from_poses``: zero velocities, weights 1/M and the given per-particle state."""
+    pos = np.arange(12.0).reshape(4, 3)
+    quat = Rotation.random(4, random_state=2).as_quat()
+    p = ParticleSet.from_poses(pos, quat, state={"id": np.arange(4)})
+    np.testing.assert_array_equal(p.weight, np.full(4, 0.25))
+    np.testing.assert_array_equal(p.vel, np.zeros((4, 3)))
+    np.testing.assert_array_equal(p.omega, np.zeros((4, 3)))
+    np.testing.assert_array_equal(p.state["id"], np.arange(4))
+
+
+def test_concat_stacks_every_array_and_refuses_a_set_with_extra_state():
+    """Positions, rotations, velocities, rates and weights in order; a later set carrying a state
+    key the first lacks is refused as well as one lacking a key."""
+    a, b = make(m=2, seed=1), make(m=3, seed=2)
+    c = ParticleSet.concat([a, b])
+    for name in ("pos", "quat", "vel", "omega"):
+        np.testing.assert_array_equal(getattr(c, name), np.vstack([getattr(a, name), getattr(b, name)]))
+    np.testing.assert_array_equal(c.weight, np.concatenate([a.weight, b.weight]))
+    with pytest.raises(ValueError, match="state keys"):
+        ParticleSet.concat([make(m=2), make(m=2, tag=np.array([1, 2]))])

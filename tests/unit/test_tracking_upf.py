@@ -933,3 +933,174 @@ def test_c4_is_the_ukf_with_the_ubif_as_table_6_11_says():
     assert TrackerConfig(variant="C4").motion.rotation_filter == "ubif"
     assert TrackerConfig(variant="C5").motion.rotation_filter == "ubigaf"
     assert not TrackerConfig(variant="C1").uses_filters and not TrackerConfig(variant="C2").uses_filters
+
+
+def test_tracker_config_bounds_as_documented():
+    """Tile at most MAX_TILE, covariance terms within their bounds, strictly increasing depth bands,
+    a depth prior floor in (0, 1]; a depth gate of 0 is allowed (it turns the gate off)."""
+    from uav_landing_vision.render.renderer import MAX_TILE
+
+    TrackerConfig(tile=MAX_TILE, depth_prior_gate=0.0, depth_prior_floor=1.0, covariance_floor_m=1e3)
+    for bad in ({"tile": MAX_TILE + 1}, {"covariance_floor_m": 2e3}, {"covariance_floor_deg": (10.0, 200.0, 8.0)},
+                {"covariance_coast_fraction": 1.5}, {"covariance_bands_m": (15.0, 15.0)},
+                {"depth_prior_floor": 1.5}, {"rotation_prior_floor": 1.5}):
+        with pytest.raises(ValueError):
+            TrackerConfig(**bad)
+
+
+def test_render_batch_is_the_largest_draw_and_at_least_512():
+    """M particles or the refinement's candidates + 1, whichever is more, and never under 512."""
+    from uav_landing_vision.tracking.upf import largest_draw, render_batch
+
+    off = RotationRefinementConfig()
+    assert render_batch(TrackerConfig(particles=100, refine=off)) == 512
+    assert render_batch(TrackerConfig(particles=600, boosted=25, refine=off)) == 600
+    big = TrackerConfig(particles=100, refine=RotationRefinementConfig(candidates=700))
+    assert largest_draw(big) == 701 and render_batch(big) == 701
+
+
+def _track_at(tracker, depths):
+    """Give ``tracker`` a carried set (best first) at the given depths."""
+    m = len(depths)
+    tracker.particles = ParticleSet.from_poses(np.column_stack([np.zeros((m, 2)), depths]), np.tile(TRUE_QUAT, (m, 1)))
+
+
+def _boosted_at(depth, count=10):
+    return ParticleSet.from_poses(np.tile([0.0, 0.0, depth], (count, 1)), np.tile(TRUE_QUAT, (count, 1)))
+
+
+def test_boosted_depth_gate_compares_with_the_best_carried_particle(renderer):
+    """The gate compares z_b with the depth of the last frame's *best* particle (the set's first),
+    not any other; with the gate at 0 there is no gate; a z_b on ``depth_prior_max_m`` is within it."""
+    t = small_tracker(renderer, depth_prior_gate=0.25, depth_prior_max_m=30.0)
+    _track_at(t, [6.0] + [12.0] * 39)
+    assert t._boosted_depth(_boosted_at(6.5)) == pytest.approx(6.5)  # 8 % off the best: kept
+    assert t._boosted_depth(_boosted_at(12.0)) is None  # 100 % off the best, although at the others' depth
+    no_gate = small_tracker(renderer, depth_prior_gate=0.0)
+    _track_at(no_gate, [6.0] * 40)
+    assert no_gate._boosted_depth(_boosted_at(12.0)) == pytest.approx(12.0)
+    edge = small_tracker(renderer, depth_prior_gate=0.0, depth_prior_max_m=6.5)
+    assert edge._boosted_depth(_boosted_at(6.5)) == pytest.approx(6.5)
+    assert edge._boosted_depth(_boosted_at(6.6)) is None
+
+
+def test_priors_take_the_depth_z_and_the_rotation_in_radians(renderer):
+    """The depth prior is of each particle's depth z (not its range): poses off the optical axis at
+    the anchor depth score 1; the rotation prior's σ is in degrees in the configuration."""
+    from uav_landing_vision.tracking.upf import depth_prior, rotation_prior
+
+    t = small_tracker(renderer, depth_prior_sigma=0.1, depth_prior_floor=0.2, rotation_prior_sigma_deg=5.0,
+                      rotation_prior_floor=0.3)
+    t._anchor, t._turn_anchor = 6.0, TRUE_QUAT
+    turned = rotate_body(np.tile(TRUE_QUAT, (3, 1)), np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.0],
+                                                               [np.radians(4.0), 0.0, 0.0]]))
+    pos = np.array([[3.0, -2.0, 6.0], [0.0, 0.0, 6.6], [0.0, 0.0, 6.0]])
+    prior = t._prior(ParticleSet.from_poses(pos, turned))
+    expected = depth_prior(pos[:, 2], 6.0, 0.1, 0.2) * rotation_prior(turned, TRUE_QUAT, np.radians(5.0), 0.3)
+    np.testing.assert_allclose(prior, expected, rtol=1e-12)
+    np.testing.assert_allclose(prior, [1.0, 0.2 + 0.8 * np.exp(-0.5), 0.3 + 0.7 * np.exp(-0.5 * 0.8**2)], rtol=1e-9)
+
+
+def test_rotation_prior_anchor_follows_the_estimate_depth_not_its_range(renderer):
+    """Within ``rotation_prior_max_m`` of depth (z) the next anchor is the refined rotation, even
+    far off the optical axis (range beyond the limit); beyond it in depth there is none."""
+    t = small_tracker(renderer, rotation_prior_max_m=15.0)
+    np.testing.assert_array_equal(t._next_turn_anchor(np.array([20.0, 0.0, 10.0]), TRUE_QUAT), TRUE_QUAT)
+    assert t._next_turn_anchor(np.array([0.0, 0.0, 16.0]), TRUE_QUAT) is None
+
+
+def test_measurement_is_the_best_scoring_pose_of_the_mix(renderer, frame, monkeypatch):
+    """(5.2.3): the carried filters are updated with z_t, the pose of the mix that scores highest
+    (the scores recomputed for the same mix before the step goes on). Poor hypotheses first, then
+    close ones: the best pose of the mix is a new one, not the first carried particle."""
+    t = small_tracker(renderer, "C4N0")
+    t.step(frame, 0, hypotheses(70, trans_sigma=0.3, rot_sigma_deg=15.0))
+    seen, updates = [], []
+    inner_filter, inner_update = t._filter, t.filters.update
+
+    def spy_filter(mixed, clock):
+        seen.append((mixed, t._score(mixed)))
+        return inner_filter(mixed, clock)
+
+    def spy_update(z_pos, z_quat):
+        updates.append((np.array(z_pos), np.array(z_quat)))
+        return inner_update(z_pos, z_quat)
+
+    monkeypatch.setattr(t, "_filter", spy_filter)
+    monkeypatch.setattr(t.filters, "update", spy_update)
+    t.step(frame, DT_NS, hypotheses(71, trans_sigma=0.01, rot_sigma_deg=0.5))
+    (mixed, scores), = seen
+    assert len(updates) == 1 and np.argmax(scores) != 0
+    np.testing.assert_array_equal(updates[0][0], mixed.pos[np.argmax(scores)])
+    np.testing.assert_array_equal(updates[0][1], mixed.quat[np.argmax(scores)])
+
+
+def test_weighting_scores_only_the_poses_the_measurement_did_not(renderer, frame, monkeypatch):
+    """One batched score of the mix picks z_t; the weighting then scores only the carried particles
+    the filters moved (M0 = 30), the new boosted ones keep their scores (§5.4.1)."""
+    t = small_tracker(renderer, "C4N0")
+    t.step(frame, 0, hypotheses(72))
+    batches, inner = [], t._score
+
+    def spy(particles):
+        batches.append(len(particles))
+        return inner(particles)
+
+    monkeypatch.setattr(t, "_score", spy)
+    t.step(frame, DT_NS, hypotheses(73))
+    assert batches[:2] == [40, 30]
+
+
+def test_weighting_resamples_with_the_configured_scheme(renderer, frame, monkeypatch):
+    """Step 3 resamples with ``TrackerConfig.resampling`` once per frame (N = 0: no PFO resampling)."""
+    from uav_landing_vision.tracking import upf
+
+    names, inner = [], upf.resample
+
+    def spy(name, weights, rng, **options):
+        names.append(name)
+        return inner(name, weights, rng, **options)
+
+    monkeypatch.setattr(upf, "resample", spy)
+    t = small_tracker(renderer, "C4N0", resampling="multinomial")
+    for k in range(2):
+        t.step(frame, k * DT_NS, hypotheses(74 + k))
+    assert names == ["multinomial", "multinomial"]
+
+
+def test_empty_hypotheses_are_a_frame_without_hypotheses(renderer, frame):
+    """Boosting that found nothing (zero poses) is as no hypotheses at all: the track coasts."""
+    empty = Hyps(np.zeros((0, 4)), np.zeros((0, 3)))
+    results = []
+    for hyps in (None, empty):
+        t = small_tracker(renderer, "C4N1")
+        for k in range(2):
+            t.step(frame, k * DT_NS, hypotheses(76 + k))
+        results.append(t.step(frame, 2 * DT_NS, hyps))
+        assert t._coasting == 1
+    np.testing.assert_array_equal(results[0].position, results[1].position)
+    np.testing.assert_array_equal(results[0].covariance, results[1].covariance)
+
+
+def test_reset_forgets_the_last_picture_so_a_new_time_line_starts_without_a_repeat(renderer, frame):
+    """With ``acquire_frames`` 1 and ``max_repeated_frames`` 1 a good frame is TRACKING unless it
+    repeats the one before; after reset() the last picture before it is no repeat."""
+    track = TrackStateConfig(acquire_likelihood=0.1, acquire_frames=1, lost_likelihood=0.01, max_repeated_frames=1)
+    t = small_tracker(renderer, track=track)
+    pictures = [shot(frame, k) for k in range(2)]
+    assert [t.step(p, k * DT_NS, hypotheses(80 + k)).state for k, p in enumerate(pictures)] == [TrackState.TRACKING] * 2
+    assert t.step(pictures[1], 2 * DT_NS, hypotheses(82)).state == TrackState.ACQUIRING  # a repeat
+    t.reset()
+    assert t.step(pictures[1], 0, hypotheses(83)).state == TrackState.TRACKING
+
+
+def test_published_particles_name_their_recentred_filters_by_slot(renderer, frame):
+    """C3–C5: after the output step each published particle's ``slot`` names the filter recentred on
+    its pose (the filters reordered with the particles)."""
+    t = small_tracker(renderer, "C4N1")
+    for k in range(2):
+        result = t.step(frame, k * DT_NS, hypotheses(84 + k))
+        pos, _, quat, _ = t.filters.estimates()
+        slot = result.particles.state["slot"]
+        np.testing.assert_allclose(pos[slot], result.particles.pos, rtol=0, atol=1e-9)
+        assert np.degrees(geodesic_angle(quat[slot], result.particles.quat)).max() < 1e-6

@@ -155,7 +155,7 @@ class PFO:
         """Per iteration: add ζ (5.18), weight (one objective call), resample back to ``M``.
 
         The result holds the resampled copies, each weighted by its own score. If every score
-        is zero the particles are kept as they are (there is nothing to resample on).
+        is zero the moved particles are kept, one copy each (there is nothing to resample on).
         """
         _check_iterations(iterations)
         cfg, m, current = self.config, len(particles), particles

@@ -522,8 +522,8 @@ class Tracker:
         return particles.take(idx, weight=w[idx])
 
     def _optimise(self, particles: ParticleSet) -> ParticleSet:
-        """Step 4 (§5.5), with elitism: if no optimised pose beats the best pose scored before the
-        optimisation, that pose replaces the worst optimised one (the colour metric's peak is a few
+        """Step 4 (§5.5), with elitism: if every optimised pose scores below the best pose scored before
+        the optimisation, that pose replaces the worst optimised one (the colour metric's peak is a few
         pixels wide, so the §6.7.1 PFO noise can step every copy off it; the thesis has no such guard)."""
         elite = particles.take([particles.best_index()])
         out = self.optimiser.run(particles, self._score, self.rng, self.config.iterations)
