@@ -88,11 +88,11 @@ def interrupt_at_second_call(monkeypatch):
     def interrupt(module, name: str, run) -> None:
         original, calls = getattr(module, name), []
 
-        def interrupted(*args):
+        def interrupted(*args, **kwargs):
             calls.append(1)
             if len(calls) == 2:
                 raise KeyboardInterrupt
-            return original(*args)
+            return original(*args, **kwargs)
 
         monkeypatch.setattr(module, name, interrupted)
         with pytest.raises(KeyboardInterrupt):

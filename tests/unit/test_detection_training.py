@@ -546,6 +546,39 @@ def test_validation_ap_decodes_each_head_with_its_stride_and_counts_every_labell
     assert validate(net, [(images, two)]) == pytest.approx(0.5)
 
 
+def test_validation_clips_boxes_to_the_letterboxed_picture_as_the_runtime_clips_them_to_the_frame():
+    """A UAV cut by the picture's top edge: the head's box runs into the padding above (IoU 1/3
+    with the label), clipped to the picture it is the label (IoU 1). A box wholly in the padding
+    below is dropped, not counted as a false positive."""
+    net = _FixedMaps(1, 64, 64, [(0, 0, 0, 4), (0, 0, 7, 1)])
+    net.maps[0][0, 3:5, 0, 4] = float(np.log(3.0))  # 24 x 24 px at (36, 4): [24, -8, 48, 16]
+    images = torch.zeros((1, 3, 64, 64))
+    cut = [torch.tensor([[24.0, 8.0, 48.0, 16.0]])]
+    picture = [np.array([0.0, 8.0, 64.0, 56.0])]  # 8 px of padding above and below
+    assert validate(net, [(images, cut)]) == pytest.approx(0.0)
+    assert validate(net, [(images, cut)], contents=picture) == pytest.approx(1.0)
+
+
+def test_the_picture_of_a_letterboxed_image_is_where_the_runtime_puts_the_frame(tmp_path):
+    """The content of each image of a folder: the frame's corners mapped by the runtime's letterbox;
+    the padding around it is grey."""
+    from uav_landing_vision.detection.detector import PAD_VALUE
+    from uav_landing_vision.detection.train import LetterboxedImages
+
+    root = tmp_path / "wide"
+    _write_folder(root, 2, size=(96, 40))
+    data = LetterboxedImages([(str(root), 0), (str(root), 1)], (96, 64), seed=0, augment=False)
+    _, runtime = letterbox(np.zeros((40, 96, 3), np.uint8), (96, 64), max_scale=1.0)
+    want = runtime.to_input(np.array([[0.0, 0.0, 96.0, 40.0]]))[0]
+    for k in range(2):
+        np.testing.assert_allclose(data.content(k), want)
+    x0, y0, x1, y1 = (int(v) for v in want)
+    tensor = data[0][0].numpy()
+    assert (x0, y0, x1, y1) == (0, 12, 96, 52)
+    assert np.all(np.delete(tensor, np.s_[y0:y1], axis=1) == np.float32(PAD_VALUE / 255.0))
+    assert not np.any(tensor[:, y0:y1] == np.float32(PAD_VALUE / 255.0))
+
+
 # --- letterboxed training images -------------------------------------------------------------
 
 def _write_folder(root, count, size=(96, 64), rect=(16, 8, 40, 32)):
@@ -642,10 +675,18 @@ def test_every_tenth_image_validates_max_images_limits_each_folder_and_the_first
             seen[augment].append(sorted(i for _, i in items))
             super().__init__(items, *args, augment=augment, **kwargs)
 
+    validated, inner = [], training.validate
+
+    def validate(net, loader, contents=None):
+        validated.append(contents)
+        return inner(net, loader, contents=contents)
+
     monkeypatch.setattr(training, "LetterboxedImages", Recording)
+    monkeypatch.setattr(training, "validate", validate)
     settings = dict(data=(root,), epochs=1, batch=2, input_size=(96, 64), crop=(0, 0), width=8, threads=1)
     training.train(training.TrainConfig(out=str(tmp_path / "all"), max_images=11, **settings), progress=False)
     assert seen[False][-1] == [0, 10] and seen[True][-1] == list(range(1, 10))
+    np.testing.assert_array_equal(validated[-1], [[0.0, 0.0, 96.0, 64.0]] * 2)  # each validation image's picture
     # three images: image 0 validates, one batch of images 1 and 2 trains, one optimiser step
     cfg = training.TrainConfig(out=str(tmp_path / "three"), max_images=3, **settings)
     training.train(cfg, progress=False)

@@ -93,10 +93,22 @@ class LetterboxedImages(torch.utils.data.Dataset):
                 meta = json.loads((Path(root) / "dataset.json").read_text())
                 self.sizes[root] = (meta["width"], meta["height"])
         self.folders = {root: n for n, root in enumerate(self.sizes)}
+        self._contents = {}
         self.seed, self.augment, self.epoch, self.crop = seed, augment, 0, crop
 
     def __len__(self):
         return len(self.items)
+
+    def content(self, k: int) -> np.ndarray:
+        """``[x0, y0, x1, y1]`` of image ``k``'s picture in its letterboxed input, not augmented:
+        what lies outside is padding."""
+        root = self.items[k][0]
+        if root not in self._contents:
+            w, h = self.sizes[root]
+            _, lb = letterbox(np.zeros((h, w, 3), np.uint8), self.input_size,
+                              max_scale=min(self.input_size[0] / w, self.input_size[1] / h))
+            self._contents[root] = lb.to_input(np.array([[0.0, 0.0, w, h]]))[0]
+        return self._contents[root]
 
     def __getitem__(self, k):
         root, i = self.items[k]
@@ -191,17 +203,27 @@ def detection_loss(outputs, targets, alpha: float = 0.25, gamma: float = 2.0):
     return obj_loss + 2.0 * box_loss, obj_loss, box_loss
 
 
-def validate(net, loader, threshold: float = 0.01) -> float:
+def validate(net, loader, threshold: float = 0.01, contents=None) -> float:
     """AP50 of the network on a loader (numpy decode + NMS, as the runtime); leaves the network
-    in eval mode, and the training loop restores its training mode (:func:`set_training`)."""
+    in eval mode, and the training loop restores its training mode (:func:`set_training`).
+
+    ``contents``: per image in the loader's order, the ``[x0, y0, x1, y1]`` of its picture in the
+    letterbox (:meth:`LetterboxedImages.content`); boxes are clipped to it and those left empty
+    dropped before NMS, as the runtime clips them to the frame."""
     net.eval()
-    scores, tps, n_gt = [], [], 0
+    scores, tps, n_gt, k = [], [], 0, 0
     with torch.no_grad():
         for images, boxes in loader:
             outputs = [o.numpy() for o in net(images)]
             for b, gt in enumerate(boxes):
                 parts = [decode(o[b], s, threshold) for o, s in zip(outputs, STRIDES)]
                 pb, ps = np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
+                if contents is not None:
+                    x0, y0, x1, y1 = contents[k]
+                    pb = np.clip(pb, [x0, y0, x0, y0], [x1, y1, x1, y1]).astype(np.float32)
+                    inside = (pb[:, 2] > pb[:, 0]) & (pb[:, 3] > pb[:, 1])
+                    pb, ps = pb[inside], ps[inside]
+                k += 1
                 keep = nms(pb, ps, 0.45, 10)
                 tp, _ = match_frame(pb[keep], ps[keep], gt.numpy())
                 scores.append(ps[keep])
@@ -242,6 +264,7 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
                                                collate_fn=collate, drop_last=len(train_set) > cfg.batch,
                                                num_workers=cfg.loader_workers)
     val_loader = torch.utils.data.DataLoader(val_set, cfg.batch, collate_fn=collate, num_workers=cfg.loader_workers)
+    val_contents = [val_set.content(k) for k in range(len(val_set))]
 
     net = UavDetectorNet(cfg.width)
     if cfg.init and not resume:
@@ -280,7 +303,7 @@ def train(cfg: TrainConfig, resume: bool = False, progress: bool = True) -> dict
             n += 1
             bar.set_postfix(loss=f"{totals[0] / n:.3f}")
         seconds = time.perf_counter() - t0
-        ap50 = validate(net, val_loader)
+        ap50 = validate(net, val_loader, contents=val_contents)
         set_training(net, frozen)
         log["epochs"].append({"epoch": epoch + 1, "loss": totals[0] / max(n, 1), "obj": totals[1] / max(n, 1),
                               "box": totals[2] / max(n, 1), "val_ap50": ap50, "seconds": seconds,
