@@ -4,7 +4,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from filterpy.kalman import KalmanFilter
+from filterpy.kalman import KalmanFilter, unscented_transform
 from pyrecest.distributions import BinghamDistribution
 from pyrecest.filters import BinghamFilter
 from scipy.spatial.transform import Rotation
@@ -412,3 +412,63 @@ def test_range_grown_noise_follows_each_particles_own_absolute_measured_depth(fr
 def test_a_negative_or_non_finite_range_fraction_is_refused(fraction):
     with pytest.raises(ValueError, match="position_measurement_range_fraction"):
         MotionFilterConfig(position_measurement_range_fraction=fraction)
+
+
+def test_ubif_measures_omega_against_the_previous_update_not_the_start():
+    """Each prediction stores the estimate it starts from with its rotation covariance: at the
+    second update, ω is measured against the first update's estimate, so its noise holds that
+    estimate's (narrower) covariance, not the wide one of the start."""
+    filt = make_rotation_filter(MotionFilterConfig(rotation_filter="ubif", initial_z=(-20.0, -40.0, -30.0)))
+    q0 = Rotation.random(1, random_state=13)
+    first = filt.update(filt.predict(filt.init(q0.as_quat(), np.array([[0.3, -0.2, 0.1]]))), q0.as_quat())
+    predicted = filt.predict(first)
+    meas = (q0 * Rotation.from_rotvec([0.01, -0.02, 0.015])).as_quat()
+    second = filt.update(predicted, meas)
+    ref = KalmanFilter(dim_x=3, dim_z=3)
+    ref.x, ref.P, ref.H = predicted.omega[0].copy(), predicted.omega_cov[0].copy(), np.eye(3)
+    ref.R = (filt.covariance(first)[0] + filt.covariance(second)[0]) / filt.dt**2
+    ref.update(np.zeros(3))
+    np.testing.assert_allclose(second.omega_cov[0], ref.P, rtol=1e-9, atol=1e-12)
+
+
+def _hamilton(a, b):
+    """Hamilton product ``a ⊗ b`` of ``[x, y, z, w]`` quaternions (last axis), written out."""
+    ax, ay, az, aw = np.moveaxis(a, -1, 0)
+    bx, by, bz, bw = np.moveaxis(b, -1, 0)
+    return np.stack([aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
+                     aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz], -1)
+
+
+def test_ubigaf_update_is_the_kalman_update_of_the_propagated_sigma_points():
+    """Algorithm 7 runs on the sigma points propagated by the prediction: their tangent
+    coordinates ``2·vec(q̄⁻¹ ⊗ x)`` about the predicted mode (x in its hemisphere) and ω give the
+    unscented moments, the noise is the tangent image of ``Cov(q ⊗ Λ) − P_q`` (C.7), and the
+    result is filterpy's Kalman update, applied to the mode as ``q̄ ⊗ [d/2, √(1 − |d/2|²)]``."""
+    filt = UBiGaF(DT, (-300.0, -150.0, -600.0), (-400.0, -900.0, -200.0), np.diag([0.3, 0.1, 0.2]))
+    q0 = Rotation.random(1, random_state=21)
+    state = filt.init(q0.as_quat(), np.array([[4.0, -3.0, 5.0]]), (-60.0, -200.0, -30.0), np.diag([4.0, 1.0, 2.0]))
+    pred = filt.predict(state)
+    meas = (q0 * Rotation.from_rotvec([0.05, -0.08, 0.1])).as_quat()
+    q_bar = pred.q[0]
+    x = pred.sig_q[0] * np.where(pred.sig_q[0] @ q_bar < 0, -1.0, 1.0)[:, None]
+    conj = q_bar * np.array([-1.0, -1.0, -1.0, 1.0])
+    d = 2.0 * _hamilton(conj, x)[:, :3]
+    r_mean, p_rr = unscented_transform(np.hstack([d, pred.sig_w[0]]), pred.weights[0], pred.weights[0])
+    # Cov(q ⊗ λ) = Σ_kl C_kl R_k P_q R_lᵀ with R_k q = q ⊗ e_k.
+    right = [np.column_stack([_hamilton(e, ek) for e in np.eye(4)]) for ek in np.eye(4)]
+    c = filt.measurement_cov
+    composed = sum(c[k, l] * right[k] @ pred.p_q[0] @ right[l].T for k in range(4) for l in range(4))
+    tangent = np.column_stack([_hamilton(q_bar, e) for e in np.eye(4)[:3]])
+    values, vectors = np.linalg.eigh(4.0 * tangent.T @ (composed - pred.p_q[0]) @ tangent)
+    ref = KalmanFilter(dim_x=6, dim_z=3)
+    ref.x, ref.P, ref.H = r_mean, p_rr, np.hstack([np.eye(3), np.zeros((3, 3))])
+    ref.R = vectors @ np.diag(np.maximum(values, 0.0)) @ vectors.T
+    z = meas[0] * (1.0 if meas[0] @ q_bar >= 0 else -1.0)
+    ref.update(2.0 * _hamilton(conj, z)[:3])
+    half = ref.x[:3] / 2.0
+    expected = _hamilton(q_bar, np.r_[half, np.sqrt(1.0 - half @ half)])
+    updated = filt.update(pred, meas)
+    q, omega = filt.estimate(updated)
+    np.testing.assert_allclose(q[0], expected * np.sign(expected[3]), atol=1e-10)
+    np.testing.assert_allclose(omega[0], ref.x[3:], atol=1e-9)
+    np.testing.assert_allclose(updated.p_w[0], ref.P[3:, 3:], atol=1e-9)
