@@ -216,3 +216,19 @@ def test_a_recording_without_frames_is_a_clear_error(tmp_path):
     drop_messages(tmp_path / "bag", tmp_path / "no_frames", "/camera/image_raw")
     with pytest.raises(ValueError, match=r"no_frames: no frames on /camera/image_raw"):
         evaluate_bag(tmp_path / "no_frames", DetectorConfig(), tmp_path / "out.json", progress=False)
+
+
+def test_near_ties_are_under_the_margin_and_runner_up_matches_count_from_iou_0_5():
+    """Hand-made labels: a margin of exactly 2.5 % is no near tie; a kept box at IoU exactly 0.5
+    with the runner-up explains the miss; the misses' margins are listed in increasing order."""
+
+    def frame(margin, runner_up, box):
+        return {"gt": np.array([[0.0, 0.0, 10.0, 10.0]]), "tie_margin": margin, "runner_up": np.array(runner_up),
+                "boxes": np.array([box], float), "scores": np.array([0.9]), "ms": 1.0}
+
+    frames = [frame(0.025, [20.0, 0.0, 30.0, 10.0], [20.0, 0.0, 30.0, 10.0]),  # the runner-up itself
+              frame(0.01, [20.0, 0.0, 30.0, 20.0], [20.0, 0.0, 30.0, 10.0]),  # IoU 100 / 200 with it
+              frame(0.02, [20.0, 0.0, 30.0, 10.0], [0.0, 0.0, 10.0, 10.0])]  # the label found
+    r = summarise(frames, threshold=0.5)
+    assert (r["truth_near_ties"], r["runner_up_misses"]) == (2, 2)
+    assert r["runner_up_miss_margins"] == [0.01, 0.025]

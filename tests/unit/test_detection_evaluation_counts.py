@@ -92,3 +92,20 @@ def test_the_detector_sees_each_frame_undistorted(tmp_path, monkeypatch):
         for got in seen[2 * k : 2 * k + 2]:
             assert np.abs(got.astype(float) - want).mean() < 0.5
             assert np.abs(got.astype(float) - want).mean() < 0.2 * np.abs(raw.astype(float) - want).mean()
+
+
+def test_a_box_scored_exactly_at_the_operating_threshold_is_kept():
+    frames = [_frame([0, 0, 20, 20], [[0, 0, 20, 20]], [0.5], 1.0),
+              _frame(np.zeros((0, 4)), [[40, 40, 50, 50]], [0.5], 1.0)]
+    r = summarise(frames, threshold=0.5)
+    assert (r["recall"], r["precision"], r["false_positives_per_100_frames"]) == pytest.approx((1.0, 0.5, 50.0))
+
+
+def test_recall_by_width_names_the_upper_buckets_and_the_open_last_one():
+    """Truth widths 100, 200, 300 and 5000 px fall in 64-128, 128-256 and the open 256+ bucket;
+    each UAV is found except the 300 px one."""
+    frames = [_frame([0, 0, w, 20], [[0, 0, w, 20]] if w != 300 else [], [0.9] if w != 300 else [], 1.0)
+              for w in (100, 200, 300, 5000)]
+    r = summarise(frames, threshold=0.5)
+    assert r["recall_by_width_px"] == {"64-128": {"recall": 1.0, "count": 1}, "128-256": {"recall": 1.0, "count": 1},
+                                       "256+": {"recall": 0.5, "count": 2}}

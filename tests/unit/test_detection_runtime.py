@@ -150,6 +150,7 @@ def test_letterbox_can_repeat_the_border_instead_of_grey():
         (np.zeros((10, 10), np.uint8), r"\(H, W, 3\)"),
         (np.zeros((10, 10, 4), np.uint8), r"\(H, W, 3\)"),
         (np.zeros((0, 10, 3), np.uint8), "empty"),
+        (np.zeros((10, 0, 3), np.uint8), "empty"),
         ([[1, 2, 3]], "numpy array"),
     ],
 )
@@ -223,3 +224,78 @@ def test_a_model_with_other_metadata_or_outputs_is_refused(tmp_path):
     onnx.save(model, str(tmp_path / "two.onnx"))
     with pytest.raises(ValueError, match=r"1 outputs for strides \(8, 16\)"):
         Detector(DetectorConfig(model=str(tmp_path / "two.onnx")))
+
+
+def test_config_accepts_the_edges_of_its_ranges():
+    """nms_iou 1 (only exact duplicates suppress), a verifier threshold of 0 (keep all) and a
+    32 px minimum window are allowed; a 31 px minimum window is not."""
+    cfg = DetectorConfig(nms_iou=1.0, verifier_threshold=0.0, window_min_px=32)
+    assert (cfg.nms_iou, cfg.verifier_threshold, cfg.window_min_px) == (1.0, 0.0, 32)
+    with pytest.raises(ValueError, match="window_min_px"):
+        DetectorConfig(window_min_px=31)
+
+
+def test_check_image_gives_a_contiguous_array_of_a_strided_view():
+    """A view with strides (every other column, as a decimated frame) comes back C-contiguous
+    with the same pixels."""
+    rng = np.random.default_rng(3)
+    frame = rng.integers(0, 256, (40, 60, 3), dtype=np.uint8)
+    view = frame[:, ::2]
+    assert not view.flags["C_CONTIGUOUS"]
+    out = check_image(view)
+    assert out.flags["C_CONTIGUOUS"]
+    np.testing.assert_array_equal(out, view)
+
+
+def test_letterbox_resizes_to_the_nearest_whole_pixel():
+    """1003×999 into 640×384: scale 384/999, so the width becomes 385.54 → 386 px, not 385."""
+    image = np.full((999, 1003, 3), 255, np.uint8)
+    out, lb = letterbox(image, (640, 384))
+    want = round(1003 * 384 / 999)
+    assert want == 386
+    cols = np.flatnonzero(out[200, :, 0] == 255)
+    assert len(cols) == want and lb.scale_x == want / 1003
+    assert out.shape == (384, 416, 3)
+
+
+def test_letterbox_odd_padding_leaves_the_extra_pixel_right_and_below_in_grey_114():
+    """A 101×301 frame in a 128×320 input: 27 columns and 19 rows of padding, 13 left and 14
+    right, 9 above and 10 below, in the grey 114 the shipped model was trained with."""
+    image = np.full((301, 101, 3), 7, np.uint8)
+    out, lb = letterbox(image, (640, 384))
+    assert out.shape == (320, 128, 3) and (lb.pad_x, lb.pad_y) == (13, 9)
+    inside = np.zeros(out.shape[:2], bool)
+    inside[9:310, 13:114] = True
+    assert np.all(out[inside] == 7) and np.all(out[~inside] == 114)
+
+
+def test_letterbox_a_frame_that_rounds_back_to_its_width_is_still_resized_in_height():
+    """A 100×1000 frame into 640×996: scale 0.996, the width rounds back to 100 px while the
+    height becomes 996 px; the input is 128×1024 with the content's rows in place."""
+    image = np.full((1000, 100, 3), 255, np.uint8)
+    out, lb = letterbox(image, (640, 996))
+    assert out.shape == (1024, 128, 3)
+    rows = np.flatnonzero(out[:, 64, 0] == 255)
+    assert len(rows) == 996 and rows[0] == lb.pad_y == 14
+    assert (lb.scale_x, lb.scale_y) == (1.0, 996 / 1000)
+
+
+def test_window_growth_stays_inside_the_frame_and_holds_the_window():
+    """Random windows: the grown window is whole cells a side (or the frame's side), lies inside
+    the frame and contains the window asked for, also at the frame's bottom and right edges."""
+    assert grow_to_multiple((100, 610, 200, 100), 1280, 720, 32) == (88, 592, 224, 128)
+    assert grow_to_multiple((1230, 100, 50, 60), 1280, 720, 32) == (1216, 98, 64, 64)
+    rng = np.random.default_rng(8)
+    for _ in range(300):
+        width, height = (int(v) for v in rng.integers(64, 1500, 2))
+        w, h = int(rng.integers(1, width + 1)), int(rng.integers(1, height + 1))
+        x, y = int(rng.integers(0, width - w + 1)), int(rng.integers(0, height - h + 1))
+        gx, gy, gw, gh = grow_to_multiple((x, y, w, h), width, height, 32)
+        assert gw == min(-(-w // 32) * 32, width) and gh == min(-(-h // 32) * 32, height)
+        assert 0 <= gx <= x and x + w <= gx + gw <= width
+        assert 0 <= gy <= y and y + h <= gy + gh <= height
+
+
+def test_search_window_side_is_the_nearest_whole_pixel_of_the_grown_side():
+    """3 × 100.3 px = 300.9 → a 301 px window about the ROI's centre (650.15, 320.0)."""
+    assert search_window((600, 300, 100.3, 40), 1280, 720, 3.0, 192) == (500, 170, 301, 301)

@@ -301,3 +301,50 @@ def test_search_window_is_square_about_the_roi_centre_and_sized_by_its_larger_si
     assert search_window((600, 300, 100, 40), 1280, 720, 3.0, 192) == (500, 170, 300, 300)
     assert search_window((600, 300, 40, 100), 1280, 720, 3.0, 192) == (470, 200, 300, 300)
     assert search_window((100, 100, 300, 300), 1280, 400, 2.0, 64) == (0, 0, 600, 400)  # taller than the frame
+
+
+def test_rois_start_at_the_pixel_holding_the_boxs_top_left_corner():
+    """Corners past a pixel's middle still belong to that pixel: [10.7, 20.9, 30.2, 40.1] covers
+    pixels 10…30 by 20…40."""
+    det = Detections(np.array([[10.7, 20.9, 30.2, 40.1]], np.float32), np.ones(1))
+    assert det.rois(1280, 720).tolist() == [[10, 20, 21, 21]]
+
+
+def test_decode_limits_a_huge_log_height_and_a_tiny_log_width_too():
+    raw = np.zeros((5, 1, 1), np.float32)
+    raw[:, 0, 0] = [3.0, 0.0, 0.0, -50.0, 50.0]
+    boxes, _ = decode(raw, 8, 0.5)
+    tiny, huge = 8 * np.exp(-MAX_LOG_SIZE), 8 * np.exp(MAX_LOG_SIZE)
+    np.testing.assert_allclose(boxes, [[4 - tiny / 2, 4 - huge / 2, 4 + tiny / 2, 4 + huge / 2]], rtol=1e-5)
+
+
+def test_a_box_exactly_half_a_fine_cell_from_a_window_side_is_dropped(detector):
+    """The cut rule is inclusive: in the 224×192 window at (88, 194), boxes (window pixels) that
+    end exactly 4 px from a side are dropped, 4.01 px from it kept (network output stubbed)."""
+    window = (100, 200, 200, 180)  # → x 88..312, y 194..386
+    cases = [([4.0, 50.0, 40.0, 80.0], False), ([4.01, 50.0, 40.0, 80.0], True),
+             ([50.0, 4.0, 90.0, 40.0], False), ([50.0, 4.01, 90.0, 40.0], True),
+             ([150.0, 50.0, 220.0, 80.0], False), ([150.0, 50.0, 219.99, 80.0], True),
+             ([50.0, 100.0, 90.0, 188.0], False), ([50.0, 100.0, 90.0, 187.99], True)]
+    for box, kept in cases:
+        detector._infer = lambda image, scale, border, box=box: (np.array([box], np.float32),
+                                                                 np.array([0.9], np.float32))
+        det = detector.detect(frame_with([]), window=window)
+        assert len(det.scores) == int(kept), (box, kept)
+        if kept:
+            np.testing.assert_allclose(det.boxes[0], np.add(box, [88, 194, 88, 194]), atol=1e-4)
+
+
+def test_the_detector_applies_its_configured_threshold_overlap_and_box_limit(detector):
+    """Seven boxes scored σ(4) ≈ 0.982, two of them overlapping by IoU ⅔: NMS at 0.45 keeps six,
+    at 0.7 all seven; a limit of 3 keeps three; a threshold of 0.99 keeps none."""
+    from dataclasses import replace
+
+    row = [(16 + 48 * k, 100, 56 + 48 * k, 140) for k in range(5)]
+    pair = [(16, 300, 56, 340), (24, 300, 64, 340)]  # 32×40 px shared of 40×40 each: IoU 1280 / 1920
+    detector.session = FixedBoxesHead(detector.strides, row + pair)
+    image = frame_with([])
+    for changes, count in [({}, 6), ({"nms_iou": 0.7}, 7), ({"max_detections": 3}, 3),
+                           ({"score_threshold": 0.99}, 0), ({"score_threshold": 0.98}, 6)]:
+        detector.config = replace(DetectorConfig(threads=1), **changes)
+        assert len(detector.detect(image).scores) == count, changes

@@ -100,3 +100,20 @@ def test_the_verifier_takes_its_crop_geometry_from_the_model_and_gives_probabili
     boxes = np.array([[5.0, 5.0, 12.0, 9.0], [20.0, 10.0, 60.0, 50.0]])
     means = box_crops(image, boxes, geometry).reshape(2, -1).mean(axis=1) / 255
     np.testing.assert_allclose(verifier.probabilities(image, boxes), 1 / (1 + np.exp(-(4.0 * means - 1.0))), rtol=1e-4)
+
+
+def test_the_verifier_refuses_frames_that_are_not_rgb_uint8_and_boxes_with_any_non_finite_number(tmp_path):
+    from uav_landing_vision.detection.verifier import BoxVerifier
+
+    verifier = BoxVerifier(_constant_logit_verifier(tmp_path / "v.onnx", CropGeometry(16, 1.5, 8.0), 1.0, 0.0),
+                           threads=1)
+    box = np.array([[10.0, 10.0, 30.0, 20.0]])
+    for image, message in [(np.zeros((60, 80, 3), np.float32), "uint8"), (np.zeros((60, 80), np.uint8), r"\(H, W, 3\)")]:
+        with pytest.raises(ValueError, match=message):
+            verifier.probabilities(image, box)
+    image = np.zeros((60, 80, 3), np.uint8)
+    for bad in (np.nan, np.inf):
+        boxes = np.array([[10.0, 10.0, 30.0, 20.0], [5.0, 5.0, 9.0, bad]])  # one number of two boxes
+        with pytest.raises(ValueError, match="finite"):
+            verifier.probabilities(image, boxes)
+    assert verifier.probabilities(image, np.zeros((0, 4))).shape == (0,)

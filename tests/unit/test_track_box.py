@@ -120,3 +120,9 @@ def test_track_box_on_the_right_of_a_wide_image_is_clipped_by_its_width():
     box = TrackBox(TrackBoxConfig(), VERTICES)
     box.set_pose(0, position, QUAT)
     assert box.roi(CAMERA, FRAME_NS) == grow_roi(roi, 0.25, 640, 360)
+
+
+def test_track_box_grow_of_exactly_two_is_allowed():
+    """The bound is inclusive: each side moved out by twice the box's size."""
+    assert TrackBoxConfig(grow=2.0).grow == 2.0
+    assert grow_roi((100, 50, 40, 20), 2.0, 640, 360) == (20, 10, 200, 100)
