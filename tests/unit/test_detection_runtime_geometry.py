@@ -13,6 +13,7 @@ from uav_landing_vision.detection.detector import (
     Detections,
     Detector,
     DetectorConfig,
+    Letterbox,
     decode,
     letterbox,
     search_window,
@@ -195,6 +196,22 @@ def test_boxes_wholly_in_the_letterbox_padding_are_dropped(detector):
     assert len(det.scores) == 1 and det.boxes[0, 0] == 0 and det.boxes[0, 2] > 0
 
 
+def test_the_cut_margin_of_a_window_larger_than_the_input_is_half_a_cell_of_the_input(detector):
+    """A 1216×704 window of a 1600×900 frame is scaled by 544/704 into the 960×544 input (940 px
+    wide from x = 10): half the finest cell, 4 input px, is 5.2 window px. A box 3.5 input px
+    (4.5 window px) from the window's left, top or right side is cut; one 4.5 input px in is kept.
+    Measured in window pixels (4), the cut boxes were kept."""
+    frame = frame_with([], width=1600, height=900)
+    window = (100, 50, 1216, 704)
+    for box in [(13.5, 200, 53.5, 230), (300, 3.5, 340, 33.5), (906.5, 200, 946.5, 230)]:
+        detector.session = FixedBoxesHead(detector.strides, [box])
+        assert len(detector.detect(frame, window=window).scores) == 0, box
+    detector.session = FixedBoxesHead(detector.strides, [(14.5, 200, 54.5, 230)])
+    det = detector.detect(frame, window=window)
+    assert len(det.scores) == 1
+    np.testing.assert_allclose(det.boxes[0, :2], [100 + 4.5 * 1216 / 940, 50 + 200 * 704 / 544], rtol=1e-5)
+
+
 class Verifier:
     def __init__(self, p):
         self.p = p
@@ -328,7 +345,7 @@ def test_a_box_exactly_half_a_fine_cell_from_a_window_side_is_dropped(detector):
              ([50.0, 100.0, 90.0, 188.0], False), ([50.0, 100.0, 90.0, 187.99], True)]
     for box, kept in cases:
         detector._infer = lambda image, scale, border, box=box: (np.array([box], np.float32),
-                                                                 np.array([0.9], np.float32))
+                                                                 np.array([0.9], np.float32), Letterbox(1.0, 0, 0, 1.0, 1.0))
         det = detector.detect(frame_with([]), window=window)
         assert len(det.scores) == int(kept), (box, kept)
         if kept:

@@ -259,23 +259,26 @@ class Detector:
         The window is first grown to whole network cells from the image around it; what the
         image cannot give is padded with its border pixels, not the grey of the full-frame
         letterbox: at full resolution a grey band looks like a box to the network. A box that
-        reaches a side of the window inside the frame (within half the finest cell) is dropped:
+        reaches a side of the window inside the frame (within half the finest cell of the
+        network's input) is dropped:
         the window may cut the UAV there, and a cut box, scored as a whole one, would give its
         depth (4.5) far too far."""
         image = check_image(image)
         height, width = image.shape[:2]
         if window is None:
             max_scale = min(self.input_size[0] / width, self.input_size[1] / height)
-            boxes, scores = self._infer(image, max_scale, cv2.BORDER_CONSTANT)
+            boxes, scores, _ = self._infer(image, max_scale, cv2.BORDER_CONSTANT)
         else:
             from ..boosting.obb import check_roi
 
             window = check_roi(window, width, height)
             ox, oy, ww, wh = grow_to_multiple(window, width, height, max(self.strides))
-            boxes, scores = self._infer(image[oy : oy + wh, ox : ox + ww], 1.0, cv2.BORDER_REPLICATE)
-            near = min(self.strides) / 2  # a cut box ends about at the side, within half the finest cell
-            cut = (boxes[:, 0] <= near) & (ox > 0) | (boxes[:, 1] <= near) & (oy > 0)
-            cut |= (boxes[:, 2] >= ww - near) & (ox + ww < width) | (boxes[:, 3] >= wh - near) & (oy + wh < height)
+            boxes, scores, lb = self._infer(image[oy : oy + wh, ox : ox + ww], 1.0, cv2.BORDER_REPLICATE)
+            # A cut box ends about at the side, within half the finest cell of the network's input;
+            # a window larger than the input is scaled down, so that is more window pixels.
+            near_x, near_y = min(self.strides) / 2 / lb.scale_x, min(self.strides) / 2 / lb.scale_y
+            cut = (boxes[:, 0] <= near_x) & (ox > 0) | (boxes[:, 1] <= near_y) & (oy > 0)
+            cut |= (boxes[:, 2] >= ww - near_x) & (ox + ww < width) | (boxes[:, 3] >= wh - near_y) & (oy + wh < height)
             boxes, scores = boxes[~cut] + np.array([ox, oy, ox, oy], np.float32), scores[~cut]
         cfg = self.config
         accept = None
@@ -284,9 +287,9 @@ class Detector:
         keep = select_boxes(boxes, scores, cfg.nms_iou, cfg.max_detections, accept)
         return Detections(boxes[keep], scores[keep])
 
-    def _infer(self, image: np.ndarray, max_scale: float, border: int) -> tuple[np.ndarray, np.ndarray]:
+    def _infer(self, image: np.ndarray, max_scale: float, border: int) -> tuple[np.ndarray, np.ndarray, Letterbox]:
         """The decoded boxes above the score threshold (in ``image``'s pixels, clipped to it;
-        none wholly in the padding) and their scores, before NMS."""
+        none wholly in the padding), their scores, before NMS, and the letterbox that fed the network."""
         cfg = self.config
         padded, lb = letterbox(image, self.input_size, max(self.strides), max_scale, border)
         blob = np.ascontiguousarray(padded.transpose(2, 0, 1)[None], np.float32) * np.float32(1 / 255)
@@ -297,4 +300,4 @@ class Detector:
                         np.array([width, height, width, height], np.float32))
         scores = np.concatenate([p[1] for p in parts])
         inside = (boxes[:, 2] > boxes[:, 0]) & (boxes[:, 3] > boxes[:, 1])
-        return boxes[inside], scores[inside]
+        return boxes[inside], scores[inside], lb
