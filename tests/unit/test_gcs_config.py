@@ -86,6 +86,14 @@ def edit(path: str, value):
         ("cone.beta2_deg", 0.0, "beta2_deg"),
         ("cone.no_return_distance_m", 0.0, "no_return_distance_m"),
         ("stale_timeout_s", 0.0, "stale_timeout_s > 0"),
+        # Each inequality is strict: equal values are refused too.
+        ("cone.glide_slope_deg", 10.0, "glide_slope_deg < alpha1_deg"),
+        ("cone.alpha2_deg", 6.0, "alpha2_deg < glide_slope_deg"),
+        ("cone.no_return_distance_m", 50.0, "no_return_distance_m < distance_m"),
+        ("mavlink.system_id", 256, "1..255"),
+        ("mavlink.component_id", 0, "1..255"),  # 0 is MAV_COMP_ID_ALL, a broadcast address
+        ("mavlink.component_id", 256, "1..255"),
+        ("mavlink.rate_hz", 0.0, r"rate_hz must be in \(0, 100\]"),
     ],
 )
 def test_invalid_parameters_are_named(path, value, message):
@@ -105,3 +113,49 @@ def test_missing_section(tmp_path):
     path.write_text("tracker:\n  ros__parameters: {}\n")
     with pytest.raises(ValueError, match="no section 'gcs_bridge'"):
         load_config(path)
+
+
+@pytest.mark.parametrize(
+    "path, value",
+    [
+        ("cone.no_return_confirm_poses", 2),
+        ("mavlink.rate_hz", 100.0),
+        ("go_around_hold_s", 0.0),
+        ("stale_timeout_s", 0.4),  # 0.4 + 1/10 Hz: exactly the 0.5 s go-around deadline
+    ],
+)
+def test_values_on_the_edge_of_their_range_are_accepted(path, value):
+    cfg = config_from_parameters(edit(path, value))
+    node = cfg
+    for part in path.split("."):
+        node = getattr(node, part)
+    assert node == value
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (lambda cfg: dataclasses.replace(cfg, camera=dataclasses.replace(cfg.camera, rpy_deg=(0.0, math.nan, 180.0))),
+         "finite"),
+        (lambda cfg: dataclasses.replace(cfg.cone, approach_course_deg=math.nan), "approach_course_deg"),
+        (lambda cfg: dataclasses.replace(cfg, go_around_hold_s=math.inf), "go_around_hold_s"),
+    ],
+)
+def test_a_config_built_in_code_refuses_non_finite_angles_and_hold(change, message):
+    """The dataclasses' own checks, not the parameter loader's (which refuses a non-finite number before them)."""
+    with pytest.raises(ValueError, match=message):
+        change(load_config(SHIPPED))
+
+
+def test_a_dotted_name_under_a_plain_value_is_named():
+    params = shipped_params()
+    params["stale_timeout_s.extra"] = 1.0  # 'stale_timeout_s' holds a number, not a group
+    with pytest.raises(ValueError, match="clashes with the value of 'stale_timeout_s'"):
+        config_from_parameters(params)
+
+
+def test_a_dotted_name_overrides_a_nested_one_without_touching_the_callers_parameters():
+    params = shipped_params()
+    params["cone.alpha1_deg"] = 11.0
+    assert config_from_parameters(params).cone.alpha1_deg == 11.0
+    assert params["cone"]["alpha1_deg"] == 10.0

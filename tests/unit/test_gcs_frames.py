@@ -160,6 +160,16 @@ def test_euler_covariance_undefined_at_vertical_pitch():
         euler_covariance(pose)
 
 
+def _unit_covariance_with(i, j, upper, lower):
+    cov = np.eye(6)
+    cov[i, j], cov[j, i] = upper, lower
+    return cov
+
+
+INDEFINITE = _unit_covariance_with(0, 1, 2.0, 2.0)  # positive variances, a correlation of 2: an eigenvalue −1
+ASYMMETRIC = _unit_covariance_with(0, 1, 0.5, 0.5 + 1e-6)  # the pair differs in its 7th digit
+
+
 @pytest.mark.parametrize(
     "position, quat, cov, message",
     [
@@ -173,6 +183,13 @@ def test_euler_covariance_undefined_at_vertical_pitch():
         ([0, 0, 1], [0, 0, 0, 1], np.eye(5), "6×6"),
         ([0, 0, 1], [0, 0, 0, 1], np.diag([1.0, 1, 1, 1, 1, -1e-6]), "positive semi-definite"),
         ([0, 0, 1], [0, 0, 0, 1], np.eye(6) + np.diag([1e-6], k=5), "symmetric"),
+        ([0, 0, np.inf], [0, 0, 0, 1], ZERO_COV, "position"),
+        ([0, 0, 1], [0, 0, 0, 0.999], ZERO_COV, "unit"),  # too short, as well as too long
+        ([0, 0, 1], [0, 0, 0, 0], ZERO_COV, "unit"),
+        ([0, 0, 1], [0, 0, 0, 1.001], ZERO_COV, "unit"),
+        ([0, 0, 1], [0, 0, 1], ZERO_COV, "quaternion"),  # three numbers of unit norm
+        ([0, 0, 1], [0, 0, 0, 1], INDEFINITE, "positive semi-definite"),
+        ([0, 0, 1], [0, 0, 0, 1], ASYMMETRIC, "symmetric"),
     ],
 )
 def test_bad_pose_is_rejected(position, quat, cov, message):
@@ -191,3 +208,58 @@ def test_rounding_in_a_small_covariance_is_accepted():
     cov[0, 1], cov[1, 0] = 1e-7, 1e-7 + 1e-12
     cov[5, 5] = -1e-12
     validate_pose([0, 0, 1], [0, 0, 0, 1], cov)
+
+
+def test_rounding_in_a_large_covariance_is_accepted():
+    """A UAV far out: variances of 10⁴ m². Rounding of 1e-8 in a correlation, or an eigenvalue
+    of −1e-8, is 1e-12 of the covariance's scale and must not refuse the pose."""
+    cov = np.diag([1e4, 1e4, 1e4, 1.0, 1.0, 1.0])
+    cov[0, 1], cov[1, 0] = 1e3, 1e3 + 1e-8
+    validate_pose([0, 0, 1], [0, 0, 0, 1], cov)
+    cov = np.diag([1e4, 1e4, 1e4, 1.0, 1.0, -1e-8])
+    validate_pose([0, 0, 1], [0, 0, 0, 1], cov)
+
+
+def _landing_pose_by_scipy(deck_position, deck_rpy, net, p_cam, rot_cam):
+    """Oracle (scipy): the landing-frame position and FRD attitude of a FLU pose in the optical frame."""
+    mount = Rotation.from_euler("ZYX", [deck_rpy[2], deck_rpy[1], deck_rpy[0]]).as_matrix()
+    r_sc = mount @ np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    p_land = r_sc @ p_cam + np.asarray(deck_position) - np.asarray(net)
+    return p_land, Rotation.from_matrix(r_sc @ rot_cam.as_matrix() @ np.diag([1.0, -1.0, -1.0]))
+
+
+def test_full_covariance_propagates_through_the_pose_chain():
+    """Correlations between all six errors, position and rotation alike: the landing-frame
+    covariance is J Σ Jᵀ, J the change of the landing pose (position, rotation vector about the
+    landing axes) under small camera-frame errors (position, rotation about the optical axes),
+    found by finite differences of a scipy-built chain."""
+    deck_position, deck_rpy, net = [1.0, 2.0, -3.0], [0.1, 0.2, 2.5], [-4.0, 0.5, -1.0]
+    deck = DeckGeometry.from_mount(deck_position, deck_rpy, net)
+    rng = np.random.default_rng(11)
+    a = rng.normal(size=(6, 6))
+    cov = a @ a.T * 1e-2
+    p_cam = np.array([3.0, -2.0, 40.0])
+    rot_cam = Rotation.from_rotvec([0.4, -1.1, 0.7])
+    p0, r0 = _landing_pose_by_scipy(deck_position, deck_rpy, net, p_cam, rot_cam)
+    h = 1e-6
+    jac = np.zeros((6, 6))
+    for k in range(6):
+        d = np.zeros(6)
+        d[k] = h
+        perturbed = Rotation.from_rotvec(d[3:]) * rot_cam  # a rotation error about the optical axes
+        p1, r1 = _landing_pose_by_scipy(deck_position, deck_rpy, net, p_cam + d[:3], perturbed)
+        jac[:3, k] = (p1 - p0) / h
+        jac[3:, k] = (r1 * r0.inv()).as_rotvec() / h
+    pose = camera_to_landing(p_cam, rot_cam.as_quat(), cov, deck)
+    np.testing.assert_allclose(pose.covariance, jac @ cov @ jac.T, rtol=1e-6, atol=1e-8)
+
+
+def test_euler_covariance_undefined_within_a_microradian_of_vertical_pitch():
+    """0.1 µrad short of 90° pitch the Euler covariance is refused; 10 µrad short it is given."""
+    def pose_at(pitch):
+        p_cam, q_cam = camera_pose_from_truth([0, 0, -3], [0, 0, np.pi], [-4, 0, -1.5], [-30, 0, -3], [0, pitch, 0])
+        return camera_to_landing(p_cam, q_cam, np.eye(6) * 1e-4, AFT_CAMERA)
+
+    with pytest.raises(ValueError, match="pitch"):
+        euler_covariance(pose_at(np.pi / 2 - 1e-7))
+    assert np.all(np.isfinite(euler_covariance(pose_at(np.pi / 2 - 1e-5))))

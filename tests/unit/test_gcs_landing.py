@@ -672,3 +672,128 @@ def test_a_heartbeat_every_second_and_at_once_when_the_link_is_back(bridge):
     assert bridge.tick(1.0).sent == ("HEARTBEAT",)
     bridge.sender.poll = lambda: True
     assert bridge.tick(1.3).sent == ("HEARTBEAT", "STATUSTEXT")
+
+
+def test_a_go_around_starts_the_run_towards_no_return_afresh():
+    """In-cone poses from before a track loss do not count towards the next commit: back in LAND,
+    the landing commits only once enough in-cone poses have come since."""
+    machine = StageMachine(CONE, go_around_hold_s=1.0)
+    assert machine.update(0.0, geometry_at(12.0), 0.0) == Stage.APPROACH
+    assert machine.update(0.1, geometry_at(11.0), 0.1) == Stage.LAND
+    assert machine.update(0.2, None, 0.1) == Stage.GO_AROUND  # the track is lost
+    assert machine.update(1.2, None, 0.1) == Stage.LOITER
+    assert machine.update(1.3, geometry_at(10.5, inside=False), 1.3) == Stage.APPROACH
+    assert machine.update(1.4, geometry_at(9.8), 1.4) == Stage.LAND
+    assert machine.update(1.5, geometry_at(9.6), 1.5) == Stage.LAND  # two in-cone poses since the loss
+    assert machine.update(1.6, geometry_at(9.4), 1.6) == Stage.NO_RETURN
+
+
+def test_no_return_holds_however_long_the_track_is_gone_or_outside_the_cone():
+    """A committed landing is never undone by time: NO_RETURN lasts until the operator's reset."""
+    machine = StageMachine(CONE, go_around_hold_s=1.0)
+    for k, rng in enumerate([12.0, 11.0, 10.0]):
+        machine.update(0.1 * k, geometry_at(rng), 0.1 * k)
+    assert machine.stage == Stage.NO_RETURN
+    assert machine.update(100.0, None, 0.2) == Stage.NO_RETURN
+    assert machine.update(1000.0, geometry_at(30.0, inside=False), 1000.0) == Stage.NO_RETURN
+
+
+def test_poses_anywhere_in_the_cone_count_towards_no_return():
+    """The run of confirming poses may begin far out in the cone: poses at 40 m and 30 m, then one
+    at 9.9 m 0.75 s later (27 m/s, within the range-rate bound), commit the landing."""
+    machine = StageMachine(CONE, go_around_hold_s=1.0)
+    assert machine.update(0.0, geometry_at(40.0), 0.0) == Stage.APPROACH
+    assert machine.update(0.5, geometry_at(30.0), 0.5) == Stage.LAND
+    assert machine.update(1.25, geometry_at(9.9), 1.25) == Stage.NO_RETURN
+
+
+def test_after_the_clock_jumps_back_half_a_second_a_new_pose_is_taken_and_waits_for_its_own_status(bridge):
+    """A jump back smaller than the staleness window still starts a new time-line: the pose held
+    (stamped ahead of the clock now) neither shuts out the new one nor vouches for it, and neither
+    does the TRACKING status of the old time-line."""
+    bridge.on_tracker_state(TRACKER_TRACKING, 10.0)
+    p_cam, q_cam = camera_pose(on_axis(40.0))
+    assert bridge.on_pose(10.0, p_cam, q_cam, COV, now_s=10.0)
+    assert "ODOMETRY" in bridge.tick(10.01).sent
+    assert bridge.on_pose(9.5, p_cam, q_cam, COV, now_s=9.51)  # the clock is back 0.5 s
+    assert "ODOMETRY" not in bridge.tick(9.52).sent  # no status of its frame yet
+    bridge.on_tracker_state(TRACKER_TRACKING, 9.5)
+    assert "ODOMETRY" in bridge.tick(9.62).sent and bridge.sender.poses[-1][0] == 9.5
+
+
+def test_after_the_clock_jumps_back_heartbeats_go_on_at_once(bridge):
+    """No pose was ever sent (no track): a replay restart must not stop the heartbeat until the
+    clock is back where it was."""
+    assert bridge.tick(500.0).sent == ("HEARTBEAT",)
+    assert bridge.tick(501.0).sent == ("HEARTBEAT",)
+    assert bridge.tick(10.0).sent == ("HEARTBEAT",)
+    assert bridge.tick(10.5).sent == ()
+    assert bridge.tick(11.0).sent == ("HEARTBEAT",)
+
+
+def test_after_the_clock_jumps_back_behind_the_last_send_the_new_pose_is_sent_at_once(bridge):
+    """The last position message went out after the last heartbeat; the clock then jumps back to
+    between the two: the new time-line's pose goes out at its first tick, with a heartbeat."""
+    assert bridge.tick(4.0).sent == ("HEARTBEAT",)
+    p_cam, q_cam = camera_pose(on_axis(40.0))
+    bridge.on_tracker_state(TRACKER_TRACKING, 4.4)
+    assert bridge.on_pose(4.4, p_cam, q_cam, COV, now_s=4.45)
+    assert bridge.tick(4.5).sent == ("STATUSTEXT", "ODOMETRY")
+    assert bridge.on_pose(4.15, p_cam, q_cam, COV, now_s=4.2)  # the clock is back at 4.2 s
+    bridge.on_tracker_state(TRACKER_TRACKING, 4.15)
+    assert bridge.tick(4.2).sent == ("HEARTBEAT", "STATUSTEXT", "ODOMETRY")  # STATUSTEXT: APPROACH → LAND
+    assert bridge.sender.poses[-1][0] == 4.15
+
+
+def test_a_position_whose_distance_exceeds_float32_is_refused_even_if_each_coordinate_fits(bridge):
+    """Each coordinate 0.7 × the float32 maximum, the distance 1.2 ×: LANDING_TARGET's distance (and
+    its body-frame coordinates, for most attitudes) would overflow."""
+    big = 0.7 * float(np.finfo(np.float32).max)
+    bridge.on_tracker_state(TRACKER_TRACKING, 1.0)
+    p_cam, q_cam = camera_pose(np.array([-big, big, -big]))
+    with pytest.raises(ValueError, match="float32"):
+        bridge.on_pose(1.0, p_cam, q_cam, COV, now_s=1.0)
+    assert bridge.tick(1.01).sent == ("HEARTBEAT",) and not bridge.sender.poses
+
+
+def test_guidance_without_a_fresh_pose_carries_the_tick_time(bridge):
+    """With no track yet, and once the pose has gone stale, the guidance is stamped with the tick's
+    time, not with a stale (or no) pose stamp."""
+    assert bridge.tick(3.0).guidance.stamp_s == 3.0
+    _tracked_pose_at(bridge, t=5.0)
+    bridge.on_tracker_state(TRACKER_TRACKING, 5.0)
+    assert bridge.tick(5.01).guidance.stamp_s == 5.0
+    g = bridge.tick(5.5).guidance  # 0.5 s old: stale
+    assert g.stamp_s == 5.5 and math.isnan(g.range)
+
+
+def test_position_messages_exactly_three_quarters_of_a_period_apart_are_sent():
+    """At 4 Hz the spacing is 0.1875 s (binary-exact): a tick that far after the last send sends the
+    new pose; one a hair sooner holds it back."""
+    cfg = dataclasses.replace(CONFIG, stale_timeout_s=0.25, mavlink=dataclasses.replace(CONFIG.mavlink, rate_hz=4.0))
+    sender = RecordingSender()
+    bridge = GcsBridge(cfg, sender=sender)
+    p_cam, q_cam = camera_pose(on_axis(40.0))
+    for stamp in (1.0, 1.125):
+        bridge.on_tracker_state(TRACKER_TRACKING, stamp)
+        assert bridge.on_pose(stamp, p_cam, q_cam, COV, now_s=stamp)
+        if stamp == 1.0:
+            assert "ODOMETRY" in bridge.tick(1.0).sent
+    assert "ODOMETRY" not in bridge.tick(1.1875 - 2.0**-20).sent
+    assert "ODOMETRY" in bridge.tick(1.1875).sent and sender.poses[-1][0] == 1.125
+
+
+def test_a_pose_already_sent_is_not_sent_again_when_the_link_is_back(bridge):
+    """After an outage the heartbeat and the stage go out again, not a position already sent."""
+    _tracked_pose_at(bridge)
+    bridge.on_tracker_state(TRACKER_TRACKING, 1.0)
+    assert "ODOMETRY" in bridge.tick(1.01).sent
+    bridge.sender.poll = lambda: True
+    assert bridge.tick(1.2).sent == ("HEARTBEAT", "STATUSTEXT")  # the pose is still fresh
+    assert len(bridge.sender.poses) == 1
+
+
+def test_a_pose_exactly_the_clock_lead_tolerance_ahead_is_taken(bridge):
+    """Refused only when more than 0.05 s ahead of the clock (0.05 − 0 is exact)."""
+    p_cam, q_cam = camera_pose(on_axis(40.0))
+    assert bridge.on_pose(0.05, p_cam, q_cam, COV, now_s=0.0)

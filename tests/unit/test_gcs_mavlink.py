@@ -5,8 +5,10 @@ are compared with the float64 truth within 1e-6 plus one float32 step of the val
 """
 
 import dataclasses
+import errno
 import hashlib
 import math
+import socket
 import struct
 import time
 
@@ -16,14 +18,14 @@ from pymavlink.dialects.v20 import common as mav2
 from scipy.spatial.transform import Rotation
 from test_gcs_landing import CONFIG, COV, on_axis
 from test_gcs_frames import camera_pose_from_truth
-from test_gcs_link import parse
+from test_gcs_link import free_port, parse
 from test_gcs_signing import UNIX_2015
 
 from uav_landing_vision.gcs import GcsBridge
 from uav_landing_vision.gcs.bridge import TRACKER_TRACKING
 from uav_landing_vision.gcs.frames import DeckGeometry, LandingPose, camera_to_landing, euler_covariance
 from uav_landing_vision.gcs.mavlink import (
-    MavlinkSender, covariance_upper_triangle, encode_pose, load_signing_key, open_link,
+    MavlinkSender, covariance_upper_triangle, encode_pose, encoder, load_signing_key, open_link,
 )
 
 KEY = bytes(range(32))
@@ -283,3 +285,77 @@ def test_status_text_keeps_up_to_the_50_characters_statustext_holds(receiver, le
     sender.close()
     (msg,) = got["STATUSTEXT"]
     assert msg.text == text[:50] and msg.severity == mav2.MAV_SEVERITY_WARNING
+
+
+def decoded(names, pose=None, stamp_s=12.5):
+    """The position messages of one pose, packed and decoded by pymavlink's own parser, by type."""
+    if pose is None:
+        quat = Rotation.from_euler("ZYX", [0.3, -0.1, 0.05]).as_quat()
+        pose = LandingPose(np.array([-30.0, 2.0, -3.0]), quat, np.eye(6) * 1e-3)
+    mav = mav2.MAVLink(None, srcSystem=1, srcComponent=197)
+    msgs = encode_pose(mav, names, pose, stamp_s, "LOCAL_FRD")
+    return {m.get_type(): m for m in parse(b"".join(msg.pack(mav) for msg in msgs))}
+
+
+def test_odometry_says_velocities_and_rates_are_unknown_and_the_quality_unset():
+    """No velocity is measured: all six velocities and rates are NaN (not a measured zero an EKF
+    would fuse), the velocity covariance is flagged unknown (NaN first), and the quality is
+    0, "unknown" (−1 would say the odometry failed)."""
+    odo = decoded(("ODOMETRY",))["ODOMETRY"]
+    for field in ("vx", "vy", "vz", "rollspeed", "pitchspeed", "yawspeed"):
+        assert math.isnan(getattr(odo, field)), field
+    assert math.isnan(odo.velocity_covariance[0])
+    assert odo.quality == 0 and odo.reset_counter == 0
+
+
+def test_landing_target_names_one_vision_target_of_unknown_size():
+    """The one target (number 0), seen by vision (LANDING_TARGET_TYPE_VISION_OTHER), no image so no
+    angular size (0)."""
+    lt = decoded(("LANDING_TARGET",))["LANDING_TARGET"]
+    assert lt.target_num == 0 and lt.type == mav2.LANDING_TARGET_TYPE_VISION_OTHER
+    assert lt.size_x == 0.0 and lt.size_y == 0.0
+
+
+def test_heartbeat_says_an_active_disarmed_onboard_controller(receiver):
+    conn, port = receiver()
+    sender = MavlinkSender(mavlink_config(port))
+    sender.send_heartbeat()
+    got = collect(conn, lambda g: "HEARTBEAT" in g)
+    sender.close()
+    (hb,) = got["HEARTBEAT"]
+    assert hb.system_status == mav2.MAV_STATE_ACTIVE
+    assert hb.base_mode == 0 and hb.custom_mode == 0  # in particular not MAV_MODE_FLAG_SAFETY_ARMED
+    assert hb.mavlink_version == 3
+
+
+def test_an_encoder_given_no_timestamp_signs_from_the_clock():
+    """As pymavlink's setup_signing: the first frame's stamp is now, in 10 µs units since 2015."""
+    class Frames(list):
+        def write(self, data):
+            self.append(bytes(data))
+
+    frames = Frames()
+    before = time.time()
+    mav = encoder(frames, 255, 190, KEY)
+    mav.heartbeat_send(6, 8, 0, 0, 4)
+    after = time.time()
+    link_id, stamp, good = signature_block(frames[0])
+    assert good and link_id == 0
+    assert int((before - UNIX_2015) * 100_000) <= stamp <= int((after - UNIX_2015) * 100_000) + 1
+
+
+def test_closing_the_bridge_frees_its_mavlink_port():
+    """A udpin station's port is free again once the bridge is closed (a restarted node can bind it)."""
+    port = free_port(socket.SOCK_DGRAM)
+    mav = dataclasses.replace(CONFIG.mavlink, connection=f"udpin:127.0.0.1:{port}")
+    bridge = GcsBridge(dataclasses.replace(CONFIG, mavlink=mav))
+
+    def bind():
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            s.bind(("127.0.0.1", port))
+
+    with pytest.raises(OSError) as exc:
+        bind()
+    assert exc.value.errno == errno.EADDRINUSE
+    bridge.close()
+    bind()

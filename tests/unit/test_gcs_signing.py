@@ -367,3 +367,33 @@ def test_a_frame_signed_with_another_key_moves_nothing(gcs, key_file):
     assert not gcs_heartbeat_heard(conn, sender, timeout=0.5)
     assert sender.mav.signing.timestamp < clock_timestamp(clock.now + 1.0)
     sender.close()
+
+
+def test_a_gcs_stamp_at_the_last_reservable_timestamp_is_taken(gcs, key_file):
+    clock = Clock()
+    conn = gcs(clock.now)
+    sender = station(conn, key_file, clock)
+    heartbeats_taken(conn, sender)
+    conn.mav.signing.timestamp = LAST_TIMESTAMP
+    assert gcs_heartbeat_heard(conn, sender)
+    assert sender.mav.signing.timestamp == LAST_TIMESTAMP
+    sender.close()
+
+
+def test_a_gcs_whose_clock_is_behind_does_not_set_the_station_back(gcs, key_file):
+    """The station's stamps never go back: after hearing a GCS 10 minutes behind, the GCS still
+    takes its frames (a lower stamp on the station's stream would be refused as a replay)."""
+    clock = Clock()
+    conn = gcs(clock.now - 600.0)
+    sender = station(conn, key_file, clock)
+    assert heartbeats_taken(conn, sender) == 3
+    before = sender.mav.signing.timestamp
+    conn.mav.heartbeat_send(6, 8, 0, 0, 4)
+    deadline = time.monotonic() + 3.0
+    while sender._inbound.signing.goodsig_count == 0 and time.monotonic() < deadline:
+        sender.poll()
+        time.sleep(0.01)
+    assert sender._inbound.signing.goodsig_count == 1  # the GCS's frame was heard
+    assert sender.mav.signing.timestamp >= before
+    assert heartbeats_taken(conn, sender) == 3
+    sender.close()
