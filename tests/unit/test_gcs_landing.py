@@ -304,7 +304,25 @@ def test_a_clock_that_jumps_back_drops_the_held_pose(bridge):
     assert bridge.on_pose(10.0, p_cam, q_cam, COV, now_s=10.0)
     bridge.on_tracker_state(TRACKER_LOST, 10.0)
     bridge.on_tracker_state(TRACKER_TRACKING, 10.0)
-    assert bridge.on_pose(9.0, p_cam, q_cam, COV, now_s=9.0)  # LOST forgets the newest stamp too
+    assert bridge.on_pose(9.0, p_cam, q_cam, COV, now_s=9.0)  # the clock is back at 9 s: a new time-line
+
+
+def test_a_pose_older_than_one_sent_is_not_sent_after_a_loss_and_reacquisition(bridge):
+    """The pose of 10.0 s is sent; the track is lost at 10.033 s and back at 10.1 s; a pose stamped
+    9.99 s, delayed past both statuses but not yet stale, must not reach the GCS after the newer one
+    (an autopilot would take it as a newer fix). The next new pose is sent as usual."""
+    p_cam, q_cam = camera_pose(on_axis(40.0))
+    bridge.on_tracker_state(TRACKER_TRACKING, 10.0)
+    assert bridge.on_pose(10.0, p_cam, q_cam, COV, now_s=10.02)
+    assert "ODOMETRY" in bridge.tick(10.03).sent
+    bridge.on_tracker_state(TRACKER_LOST, 10.033)
+    bridge.on_tracker_state(TRACKER_TRACKING, 10.1)
+    assert not bridge.on_pose(9.99, p_cam, q_cam, COV, now_s=10.11)
+    assert "ODOMETRY" not in bridge.tick(10.3).sent
+    assert bridge.on_pose(10.133, p_cam, q_cam, COV, now_s=10.31)
+    bridge.on_tracker_state(TRACKER_TRACKING, 10.133)
+    assert "ODOMETRY" in bridge.tick(10.32).sent
+    assert [stamp for stamp, _ in bridge.sender.poses] == [10.0, 10.133]
 
 
 @pytest.mark.parametrize("land_range_m, t0, lost_first", [(20.0, 5.0, True), (14.0, 5.3, False)])

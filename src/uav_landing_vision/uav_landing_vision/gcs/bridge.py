@@ -66,6 +66,7 @@ class GcsBridge:
         self._pose_sent = False
         self._pending: LandingPose | None = None  # a newer pose awaiting its frame's status
         self._pending_stamp = -math.inf
+        self._newest_stamp = -math.inf  # of every pose taken; a loss keeps it, so none older is sent after it
         self._last_position_send = -math.inf
         self._last_heartbeat = -math.inf
 
@@ -87,8 +88,9 @@ class GcsBridge:
 
         Malformed input raises ValueError and changes nothing: a stamp that is not a finite time
         ≥ 0 or lies more than ``CLOCK_LEAD_TOLERANCE_S`` ahead of ``now_s``, or a pose or
-        covariance MAVLink cannot carry. Returns False, ignoring the pose, when it is older than
-        the one held or already stale at ``now_s``.
+        covariance MAVLink cannot carry. Returns False, ignoring the pose, when it is not newer
+        than every pose taken before (a loss of track does not change that: a pose that comes late
+        must not reach the GCS after a newer one did) or already stale at ``now_s``.
         """
         if not (math.isfinite(stamp_s) and stamp_s >= 0.0):
             raise ValueError(f"pose stamp must be a finite time >= 0, got {stamp_s!r}")
@@ -102,9 +104,9 @@ class GcsBridge:
         if not np.all(np.abs(mavlink_covariance) <= FLOAT32_MAX) or np.linalg.norm(pose.position) > FLOAT32_MAX:
             raise ValueError("pose position or covariance exceeds MAVLink's float32 range")
         self._forget_pose_ahead_of(now_s)
-        if stamp_s <= max(self._stamp, self._pending_stamp) or now_s - stamp_s > self._cfg.stale_timeout_s:
+        if stamp_s <= self._newest_stamp or now_s - stamp_s > self._cfg.stale_timeout_s:
             return False
-        self._pending, self._pending_stamp = pose, stamp_s
+        self._pending, self._pending_stamp, self._newest_stamp = pose, stamp_s, stamp_s
         self._confirm()
         return True
 
@@ -114,6 +116,8 @@ class GcsBridge:
             self._pose, self._stamp = None, -math.inf
         if self._pending_stamp - now_s > CLOCK_LEAD_TOLERANCE_S:
             self._pending, self._pending_stamp = None, -math.inf
+        if self._newest_stamp - now_s > CLOCK_LEAD_TOLERANCE_S:
+            self._newest_stamp = -math.inf
         if self._status_stamp - now_s > CLOCK_LEAD_TOLERANCE_S:
             self._status_stamp = -math.inf
 
