@@ -297,3 +297,59 @@ def test_a_distorted_camera_is_held_rectified(camera):
     raw = load_camera_info_yaml(config_path("camera.yaml"))
     assert raw.is_distorted
     assert not PoseHypothesisGenerator(_angle_db(camera), raw).camera.is_distorted
+
+
+def test_each_hypothesis_takes_the_depth_at_which_its_own_entry_has_the_observed_size(camera):
+    """Entries of fronto-parallel plates of three sizes at the database's 4 m, all of the
+    observed shape: each hypothesis lies at the depth where its own plate projects (pinhole) to
+    the observed box's area, so only the plate of the observed size is at the true 12 m."""
+    sides = [1.0, 1.5, 2.25]
+    db = _database(camera, [list(_square_box(camera, [0.0, 0.0, 4.0], s, 4.0)) for s in sides])
+    obs = _square_box(camera, [0.4, 0.2, 12.0], 1.5, 12.0)
+    hyp = hypotheses_from_obb(db, obs, 3, camera, centre_offset=False)
+    assert sorted(hyp.indices.tolist()) == [0, 1, 2]
+    for i, z in zip(hyp.indices, hyp.positions[:, 2]):
+        assert _square_box(camera, [0.0, 0.0, z], sides[i], z).area == pytest.approx(obs.area, rel=1e-4)
+    depth = dict(zip(hyp.indices.tolist(), hyp.positions[:, 2]))
+    assert depth[1] == pytest.approx(12.0, rel=1e-4) and depth[0] < 12.0 < depth[2]
+
+
+def test_centre_offset_turns_both_of_its_image_components_with_the_box(camera):
+    """The entry's box centre lies 30 px right of and 40 px below the projected body origin; the
+    UAV observed at twice the depth with its box turned by 60° (image x towards y): the offset is
+    halved and turned by 60° about the optical axis (scipy oracle), and the body origin is found."""
+    db = _database(camera, [[0.0, camera.cx + 30.0, camera.cy + 40.0, 200.0, 50.0]])
+    origin = np.array([0.5, -0.3, 8.0])
+    turned = Rotation.from_euler("z", 60.0, degrees=True).apply([30.0, 40.0, 0.0])[:2]
+    centre = camera.project_pinhole(origin) + 0.5 * turned
+    hyp = hypotheses_from_obb(db, Obb(60.0, centre[0], centre[1], 100.0, 25.0), 1, camera, turn_orientation=False)
+    np.testing.assert_allclose(hyp.positions[0], origin, atol=1e-6)
+
+
+def test_min_roi_cover_is_of_the_roi_s_longer_side_when_the_roi_is_tall(camera):
+    """A UAV seen nose-on gives a tall ROI: a 200 px-tall box spans half of a 400 px-tall,
+    80 px-wide ROI (no hypotheses), and most of a 220 px-tall one (hypotheses)."""
+    gen = PoseHypothesisGenerator(_angle_db(camera), camera, HypothesisConfig(particles=40, kept=30))
+    frame = _generator_frame(camera, rows=slice(150, 350), cols=slice(600, 640))
+    assert gen.generate(frame, (580, 140, 80, 220)).obb.w == pytest.approx(200.0, abs=3.0)
+    assert gen.generate(frame, (580, 100, 80, 400)) is None
+
+
+def test_a_box_without_width_is_refused(camera):
+    db = _database(camera, [[0.0, camera.cx, camera.cy, 200.0, 50.0]])
+    with pytest.raises(ValueError, match="positive sides"):
+        hypotheses_from_obb(db, Obb(30.0, 100.0, 100.0, 0.0, 50.0), 1, camera)
+
+
+def test_hypothesis_config_takes_the_ends_of_its_documented_ranges():
+    """min_roi_cover in [0, 1], 0 <= M0 < M and the ROI growth up to 10 x its size and 1e4 px
+    are closed ranges; numpy integers are integers; a growth just past its limit is refused."""
+    for cover in (0.0, 1.0):
+        assert HypothesisConfig(min_roi_cover=cover).min_roi_cover == cover
+    fresh = HypothesisConfig(particles=1, kept=0)  # no particle kept: every one boosted afresh
+    assert (fresh.count(True), fresh.count(False)) == (1, 1)
+    HypothesisConfig(roi_margin=10.0, roi_pad_px=1e4)
+    assert HypothesisConfig(particles=np.int64(40), kept=np.int32(30)).count(False) == 10
+    for kwargs in ({"roi_margin": 10.5}, {"roi_pad_px": 1.05e4}):
+        with pytest.raises(ValueError, match="roi_margin and roi_pad_px"):
+            HypothesisConfig(**kwargs)

@@ -148,3 +148,36 @@ def test_coverage_table_prints_position_then_rotation():
     lines = format_coverage({"C4N2": rows}, "seq").splitlines()
     assert lines[2].split() == ["0-8", "m", "1/4", "|", "3/4"]
     assert lines[3].split() == ["all", "1/4", "|", "3/4"]
+
+
+def test_errors_exactly_on_the_chi_square_quantile_are_inside():
+    """"At most the quantile": a position and a rotation error of 0.1 (m, rad) along x under a
+    variance chosen so that 0.1 · 0.1 / σ² is the 3-DoF 95 % quantile to the last bit count as inside."""
+    limit = chi2.ppf(0.95, 3)
+    s0 = 0.01 / limit
+    s = next(s0 + k * np.spacing(s0) for k in range(-20, 21) if 0.1 * (0.1 / (s0 + k * np.spacing(s0))) == limit)
+    cov = np.diag([s, 1.0, 1.0, s, 1.0, 1.0])[None]
+    t_true, t_est = np.array([[0.1, 0.0, 10.0]]), np.array([[0.0, 0.0, 10.0]])
+    q_true = Rotation.from_rotvec([0.1, 0.0, 0.0]).as_quat()[None]
+    err = error_vectors(t_true, q_true, t_est, np.array([IDENTITY]))
+    assert err[0, 0] == 0.1 and err[0, 3] == 0.1 and np.all(err[0, [1, 2, 4, 5]] == 0.0)
+    rows = coverage_by_depth(t_true, q_true, t_est, np.array([IDENTITY]), cov)
+    assert (rows[-1]["frames"], rows[-1]["position"], rows[-1]["rotation"]) == (1, 1, 1)
+
+
+def test_nees_takes_a_covariance_whose_entries_reach_the_usable_maximum():
+    """Entries up to USABLE_COVARIANCE_MAX (1e150) are a statement of uncertainty; only those
+    beyond it are not: an error of 1e75 under 1e150 · I is one σ away."""
+    e = np.array([[1e75, 0.0, 0.0]])
+    assert nees(e, (np.eye(3) * 1e150)[None])[0] == pytest.approx(1.0)
+    assert np.isnan(nees(e, (np.eye(3) * 1.01e150)[None])[0])
+
+
+def test_coverage_table_gives_each_variant_its_own_counts_in_columns_that_keep_apart():
+    """Two variants with different counts over 1000 frames: each column shows its own variant's
+    ``inside/frames`` pairs, and the wide cells stay separated."""
+    a = [{"depth_m": None, "frames": 1000, "position": 950, "rotation": 948}]
+    b = [{"depth_m": None, "frames": 1000, "position": 20, "rotation": 7}]
+    lines = format_coverage({"C4N2": a, "C1N0": b}, "seq").splitlines()
+    assert lines[1].split() == ["true", "depth", "C4N2", "C1N0"]
+    assert lines[2].split() == ["all", "950/1000", "|", "948/1000", "20/1000", "|", "7/1000"]

@@ -511,3 +511,54 @@ def test_a_summary_file_that_is_not_an_object_is_refused_as_off_the_schema(tmp_p
     (tmp_path / "s.json").write_text(text)
     with pytest.raises(SummaryError):
         load_summary(tmp_path / "s.json")
+
+
+def test_align_gives_one_row_per_ground_truth_stamp_in_the_truth_s_order():
+    """Rows follow the ground truth, stamps included: an estimate in another order and with a
+    frame missing is put under the truth's stamps, NaN where it has none."""
+    truth = Poses(np.array([10, 20, 30]), np.zeros((3, 3)), np.tile(IDENTITY, (3, 1)))
+    est = Poses(np.array([30, 10]), np.array([[3.0, 0.0, 0.0], [1.0, 0.0, 0.0]]), np.tile(IDENTITY, (2, 1)))
+    aligned = align(truth, est)
+    assert aligned.stamps_ns.tolist() == [10, 20, 30]
+    np.testing.assert_array_equal(aligned.trans[[0, 2], 0], [1.0, 3.0])
+    assert np.all(np.isnan(aligned.trans[1])) and np.all(np.isnan(aligned.quat[1]))
+
+
+def test_refusals_name_the_first_three_offending_stamps():
+    """Repeated estimate stamps and unusable poses are named, up to three of them."""
+    quat = np.tile(IDENTITY, (4, 1))
+    stamps = np.array([10, 20, 30, 40])
+    with pytest.raises(ValueError, match=r"more than one pose at stamp\(s\) \[10, 20, 30\]; give one"):
+        align(Poses(stamps, np.zeros((4, 3)), quat), Poses(np.repeat(stamps, 2), np.zeros((8, 3)), np.tile(IDENTITY, (8, 1))))
+    with pytest.raises(ValueError, match=r"the estimate has no usable pose .* at stamp\(s\) \[10, 20, 30\]$"):
+        score(Poses(stamps, np.zeros((4, 3)), quat), Poses(stamps, np.zeros((4, 3)), np.zeros((4, 4))))
+
+
+def test_a_vanishing_quaternion_is_refused_like_a_zero_one():
+    """A quaternion of norm 1e-13 is a zero one up to rounding (no estimator writes a unit
+    quaternion so short): no usable pose, though it would normalise to a rotation."""
+    quat = np.tile(IDENTITY, (2, 1))
+    tiny = quat.copy()
+    tiny[1] = [0.0, 0.0, 1e-13, 0.0]
+    with pytest.raises(ValueError, match=r"the estimate has no usable pose .* at stamp\(s\) \[20\]"):
+        score(Poses(np.array([10, 20]), np.zeros((2, 3)), quat), Poses(np.array([10, 20]), np.zeros((2, 3)), tiny))
+
+
+def test_an_estimate_pose_at_a_stamp_without_ground_truth_is_not_scored_however_unusable():
+    """Only the ground-truth frames are scored: a zero quaternion at an extra stamp of the
+    estimate (a frame the truth does not cover) neither stops scoring nor changes the errors."""
+    truth = Poses(np.array([10, 20]), np.zeros((2, 3)), np.tile(IDENTITY, (2, 1)))
+    quat = np.array([IDENTITY, [0.0, 0.0, 0.0, 0.0], IDENTITY])
+    est = Poses(np.array([10, 15, 20]), np.array([[1.0, 0.0, 0.0], [9.0, 9.0, 9.0], [0.0, 2.0, 0.0]]), quat)
+    assert score(truth, est)["euclidean"].tolist() == [1.0, 2.0]
+
+
+def test_an_estimate_csv_without_times_has_no_mean_time(tmp_path):
+    """No ``ms`` column, or one left empty on every row: the time per frame is unknown (None), not 0 ms."""
+    from uav_landing_vision.evaluation.score import mean_ms_per_frame
+
+    path = tmp_path / "est.csv"
+    path.write_text("stamp_ns,x,y,z,qx,qy,qz,qw\n10,0,0,5,0,0,0,1\n")
+    assert mean_ms_per_frame(path) is None
+    path.write_text("stamp_ns,x,y,z,qx,qy,qz,qw,ms\n10,0,0,5,0,0,0,1,\n20,0,0,5,0,0,0,1,\n")
+    assert mean_ms_per_frame(path) is None

@@ -503,3 +503,80 @@ def test_the_command_refuses_a_bad_number_before_running(recorded_run, tmp_path,
     with pytest.raises(SystemExit, match=f"^uav-landing evaluate: {message}"):
         main(["evaluate", "--bag", str(tmp_path / "bag"), "--roi-source", "oracle", option, value])
     assert recorded_run == []
+
+
+def test_every_tracker_gets_the_run_s_m_and_seed_all_m_hypotheses_and_its_states_are_kept(bag, monkeypatch):
+    """``particles`` and ``seed`` reach every variant's tracker, each frame's boosting gives the M
+    hypotheses a (re)initialisation needs (the tracker takes the first M − M0 otherwise), and the
+    result keeps the state each tracker reported at each frame."""
+    truth = read_poses(bag)
+    stand_in = _stand_in_tracker(truth)
+    configs, counts = [], []
+
+    class Recording(stand_in):
+        def __init__(self, config, camera, renderer):
+            configs.append(config)
+            super().__init__(config, camera, renderer)
+
+        def step(self, frame, stamp_ns, hypotheses=None):
+            counts.append(None if hypotheses is None else len(hypotheses))
+            return super().step(frame, stamp_ns, hypotheses)
+
+    monkeypatch.setattr(evaluate, "Tracker", Recording)
+    result = evaluate_bag(bag, ["C1N0", "C4N2"], particles=30, seed=7, roi_source="oracle", frames=6, progress=False)
+    assert [(c.variant, c.iterations, c.particles, c.seed) for c in configs] == [("C1", 0, 30, 7), ("C4", 2, 30, 7)]
+    assert any(n is not None for n in counts) and all(n in (None, 30) for n in counts)
+    expected = [TrackState.TRACKING] * 6
+    expected[LOST_STATE], expected[NO_POSE] = TrackState.LOST, TrackState.ACQUIRING
+    for name in ("C1N0", "C4N2"):
+        assert result.states[name].tolist() == [int(s) for s in expected]
+
+
+def test_track_boxes_come_from_the_last_pose_given_and_their_run_restarts_at_each_detection(bag, monkeypatch):
+    """Detections at frames 0, 1 and 5, track boxes (at most 3 in a row) between: frame 4's box
+    is of frame 2's pose, as frame 3 gave none; the detection at frame 5 starts a new run of 3
+    track boxes (frames 6–8), and frame 9 gets none."""
+    from uav_landing_vision.boosting import PoseHypothesisGenerator
+    from uav_landing_vision.detection.track_box import TrackBoxConfig, grow_roi
+
+    truth = read_poses(bag)
+    camera, vertices = read_camera(bag).rectified(), fixed_wing_mesh("high").vertices
+    monkeypatch.setattr(evaluate, "Tracker", _stand_in_tracker(truth))
+    detected = {0, 1, 5}
+
+    def detection(k):
+        return projected_roi(camera, vertices, truth.quat[k], truth.trans[k])
+
+    monkeypatch.setattr(evaluate, "detector_rois", lambda cam: lambda frame, k: detection(k) if k in detected else None)
+    shipped = evaluate.shipped_config
+    monkeypatch.setattr(evaluate, "shipped_config", lambda cls, node, group="": (
+        replace(shipped(cls, node, group), max_frames=3) if cls is TrackBoxConfig else shipped(cls, node, group)))
+    boxes, generate = [], PoseHypothesisGenerator.generate
+
+    def recorded(self, frame, roi, *args, **kwargs):
+        boxes.append(tuple(roi))
+        return generate(self, frame, roi, *args, **kwargs)
+
+    monkeypatch.setattr(PoseHypothesisGenerator, "generate", recorded)
+    evaluate_bag(bag, ["C4N2"], particles=30, frames=10, progress=False)
+    grow = shipped(TrackBoxConfig, "detector", "track_box").grow
+
+    def track_box(i):  # the stand-in's pose at frame i
+        quat = (TILT.inv() * Rotation.from_quat(truth.quat[i])).as_quat()
+        return grow_roi(projected_roi(camera, vertices, quat, truth.trans[i] + OFFSET), grow, camera.width, camera.height)
+
+    assert boxes == [detection(0), detection(1), track_box(1), track_box(2), track_box(2), detection(5),
+                     track_box(5), track_box(6), track_box(7)]
+
+
+def test_the_timing_table_keeps_wide_figures_of_several_variants_apart():
+    """Two variants at over a second per frame: each column's figure stands on its own."""
+    one = _result()
+    two = replace(one, estimates={**one.estimates, "C1N0": one.estimates["C4N2"]},
+                  errors={**one.errors, "C1N0": one.errors["C4N2"]},
+                  covariances={**one.covariances, "C1N0": one.covariances["C4N2"]},
+                  stage_ms={**one.stage_ms, "C1N0": one.stage_ms["C4N2"]},
+                  ms_per_frame={"C4N2": 1234.5, "C1N0": 2345.6}, states={**one.states, "C1N0": one.states["C4N2"]})
+    timing = format_results(two).split("\n\n")[3]
+    assert _row(timing, "ms/frame") == ["1234.5", "2345.6"]
+    assert _row(timing, "Lost %") == ["25.00", "25.00"]

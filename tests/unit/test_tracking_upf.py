@@ -1104,3 +1104,13 @@ def test_published_particles_name_their_recentred_filters_by_slot(renderer, fram
         slot = result.particles.state["slot"]
         np.testing.assert_allclose(pos[slot], result.particles.pos, rtol=0, atol=1e-9)
         assert np.degrees(geodesic_angle(quat[slot], result.particles.quat)).max() < 1e-6
+
+
+def test_a_lost_likelihood_of_zero_is_allowed_and_never_counts_a_frame_as_bad():
+    """``0 <= lost_likelihood``: at 0 no score in [0, 1] lies below it, so scores alone never
+    demote or lose the track; a negative threshold is refused."""
+    m = TrackMonitor(TrackStateConfig(acquire_likelihood=0.5, acquire_frames=1, lost_likelihood=0.0, lost_frames=1))
+    m.initialised()
+    assert [m.update(v) for v in (0.9, 0.0, 0.0, 0.0)] == [TrackState.TRACKING] * 4
+    with pytest.raises(ValueError, match="lost_likelihood"):
+        TrackStateConfig(lost_likelihood=-0.01)
