@@ -160,3 +160,34 @@ def test_sign_invariance_of_errors(a, b):
     assert g.geodesic_angle(a, -b) == pytest.approx(base, abs=1e-12)
     np.testing.assert_allclose(g.quat_to_matrix(-a), g.quat_to_matrix(a), atol=1e-12)
     assert np.linalg.norm(g.quat_multiply(a, b)) == pytest.approx(1.0, abs=1e-12)
+
+
+def test_normalise_scales_each_quaternion_of_a_batch_by_its_own_norm(quats, rng):
+    """Each row by its own norm; one zero row in a batch is refused."""
+    scales = rng.uniform(0.1, 10.0, (M, 1))
+    np.testing.assert_allclose(g.quat_normalise(quats * scales), quats, atol=1e-12)
+    batch = quats[:3].copy()
+    batch[1] = 0.0  # one zero among unit quaternions
+    with pytest.raises(ValueError, match="normalise"):
+        g.quat_normalise(batch)
+
+
+def test_euler_angles_of_a_quaternion_at_exactly_ninety_degrees_pitch_are_finite():
+    """Yaw −2 and pitch ±90° give a matrix entry of ∓(1 + 2e−16) from rounding: β is ±π/2, not NaN."""
+    for beta in (np.pi / 2, -np.pi / 2):
+        rot = Rotation.from_euler("ZYX", [-2.0, beta, 0.0])
+        assert abs(g.quat_to_matrix(rot.as_quat())[2, 0]) > 1.0
+        angles = g.quat_to_euler_zyx(rot.as_quat())
+        np.testing.assert_allclose(angles[:2], [0.0, beta], atol=1e-7)
+        np.testing.assert_allclose(g.euler_zyx_to_matrix(angles), rot.as_matrix(), atol=1e-7)
+
+
+def test_errors_do_not_depend_on_the_scale_of_the_quaternions(quats, rng):
+    """Both errors normalise their arguments: non-unit quaternions give those of the rotations."""
+    est = Rotation.random(M, random_state=rng).as_quat()
+    scale_true, scale_est = rng.uniform(0.2, 5.0, (M, 1)), rng.uniform(0.2, 5.0, (M, 1))
+    q_e = Rotation.from_quat(quats) * Rotation.from_quat(est).inv()
+    expected = q_e.as_euler("ZYX")[:, ::-1]
+    np.testing.assert_allclose(g.euler_error(quats * scale_true, est * scale_est), expected, atol=1e-9)
+    angle = (Rotation.from_quat(quats).inv() * Rotation.from_quat(est)).magnitude()
+    np.testing.assert_allclose(g.geodesic_angle(quats * scale_true, est * scale_est), angle, atol=1e-12)

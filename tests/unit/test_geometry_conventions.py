@@ -46,3 +46,11 @@ def test_euler_angles_at_gimbal_lock_put_the_whole_yaw_into_gamma():
     # just off the lock, α and γ are separate again
     angles = np.array([0.3, np.pi / 2 - 1e-5, -0.4])
     np.testing.assert_allclose(g.matrix_to_euler_zyx(g.euler_zyx_to_matrix(angles)), angles, atol=1e-6)
+
+
+def test_default_rodrigues_parameters_are_a_1_and_f_4():
+    """Without ``a``, ``f``: d = 4·tan(θ/4)·n, four times scipy's modified Rodrigues parameters."""
+    r = Rotation.random(50, random_state=np.random.default_rng(8))
+    e = g.quat_canonical(r.as_quat())
+    np.testing.assert_allclose(g.rodrigues_from_quat(e), 4.0 * r.as_mrp(), atol=1e-12)
+    np.testing.assert_allclose(g.quat_from_rodrigues(4.0 * r.as_mrp()), e, atol=1e-12)

@@ -407,3 +407,35 @@ def test_lifting_surfaces_enclose_the_volume_of_their_sections(mesh):
     assert tail.volume == pytest.approx(_naca_section_area(0.09) * 0.12**2 * 0.5, rel=0.04)
     mean_sq_chord = (0.14**2 + 0.14 * 0.08 + 0.08**2) / 3
     assert fin.volume == pytest.approx(_naca_section_area(0.09) * mean_sq_chord * 0.19, rel=0.04)
+
+
+def test_triangle_counts_are_the_documented_ones():
+    """fixed_wing_mesh: "high" 3 092 triangles, "low" 788."""
+    assert fixed_wing_mesh("high").triangle_count == 3092
+    assert fixed_wing_mesh("low").triangle_count == 788
+
+
+@pytest.mark.parametrize("size", [0.1, 20.0])
+def test_models_exactly_at_the_size_limits_are_accepted(tmp_path, size):
+    """0.1 m and 20 m across (a tetrahedron with its corner at the origin) are within 0.1–20 m."""
+    corners = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]]) * size
+    path = tmp_path / "tetra.obj"
+    path.write_text(_obj_text(corners, _TETRA_FACES))
+    assert load_mesh(path).extents.max() == pytest.approx(size)
+
+
+def test_fuselage_encloses_the_solid_its_rings_describe(mesh):
+    """The fuselage (1.2 m long) is its rings of equal regular polygons joined by frusta, and a cone
+    from each end ring to the nose (x = 0.45) or tail (x = −0.75) point: its volume is theirs."""
+    parts = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False).split(only_watertight=False)
+    fuselage = next(p for p in parts if np.ptp(p.vertices[:, 0]) > 1.1)
+    v = fuselage.vertices.astype(float)
+    assert v[:, 0].max() == pytest.approx(0.45) and v[:, 0].min() == pytest.approx(-0.75)
+    xs = np.unique(v[:, 0])
+    rings = [v[v[:, 0] == x] for x in xs[1:-1]]
+    n = len(rings[0])
+    area = np.array([0.5 * n * np.hypot(r[:, 1], r[:, 2]).mean() ** 2 * np.sin(2 * np.pi / n) for r in rings])
+    h = np.diff(xs)
+    frusta = h[1:-1] / 3 * (area[:-1] + area[1:] + np.sqrt(area[:-1] * area[1:]))
+    cones = (h[0] * area[0] + h[-1] * area[-1]) / 3
+    assert fuselage.volume == pytest.approx(frusta.sum() + cones, rel=1e-6)

@@ -335,3 +335,104 @@ def test_returned_masks_are_not_overwritten_by_the_next_batch(camera, mesh, pose
         r.silhouettes(quats[:1], np.array([[0.0, 0.0, -10.0]]))  # behind the camera: an empty tile
         np.testing.assert_array_equal(first.masks, kept)
         r.release()
+
+
+@pytest.mark.parametrize("margin", [0.1, 0.3])
+def test_box_side_is_the_larger_projected_extent_with_the_margin_plus_two_pixels(camera, mesh, poses, margin):
+    """Against cv2.projectPoints of every vertex: the square box is centred on the projected extent,
+    its side the larger extent times 1 + margin, plus 2 px."""
+    quats, trans = poses
+    with Renderer(camera, mesh, tile=TILE, max_batch=16, margin=margin) as r:
+        boxes = r.silhouettes(quats[:16], trans[:16]).boxes
+    for q, t, box in zip(quats[:16], trans[:16], boxes):
+        uv, _ = cv2.projectPoints(mesh.vertices.astype(float), Rotation.from_quat(q).as_rotvec(), t, camera.K, None)
+        lo, hi = uv[:, 0].min(axis=0), uv[:, 0].max(axis=0)
+        half = 0.5 * ((hi - lo).max() * (1 + margin) + 2.0)
+        np.testing.assert_allclose(box, [*(0.5 * (lo + hi) - half), *(0.5 * (lo + hi) + half)], atol=1e-6)
+
+
+def test_full_frame_silhouettes_are_not_overwritten_by_the_next_call(renderer, poses):
+    quats, trans = poses
+    first = renderer.silhouette_full(quats[0], trans[0])
+    kept = first.copy()
+    assert kept.any()
+    renderer.silhouette_full(quats[0], [0.0, 0.0, -10.0])  # behind the camera: an empty frame
+    np.testing.assert_array_equal(first, kept)
+
+
+def test_shaded_images_are_not_overwritten_by_the_next_call(camera, renderer):
+    background = np.full((camera.height, camera.width, 3), 40, np.uint8)
+    rgb, alpha = renderer.shaded(side_view_quat(), [0.0, 0.0, 6.0], background)
+    kept_rgb, kept_alpha = rgb.copy(), alpha.copy()
+    assert (kept_alpha > 0).any()
+    renderer.shaded(side_view_quat(), [0.0, 0.0, -6.0], np.zeros_like(background))
+    np.testing.assert_array_equal(rgb, kept_rgb)
+    np.testing.assert_array_equal(alpha, kept_alpha)
+
+
+@pytest.mark.parametrize("light", [(0.0, 0.0, 0.0), (np.nan, 0.0, -1.0), (0.0, -1.0), (0.0, -1.0, 0.0, 1.0)])
+def test_shaded_refuses_a_light_direction_that_is_not_a_non_zero_3_vector(camera, renderer, light):
+    background = np.zeros((camera.height, camera.width, 3), np.uint8)
+    with pytest.raises(ValueError, match="light_dir"):
+        renderer.shaded(side_view_quat(), [0.0, 0.0, 6.0], background, light_dir=light)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.uint16])
+def test_shaded_refuses_a_background_that_is_not_uint8(camera, renderer, dtype):
+    background = np.zeros((camera.height, camera.width, 3), dtype)
+    with pytest.raises(ValueError, match="background must be"):
+        renderer.shaded(side_view_quat(), [0.0, 0.0, 6.0], background)
+
+
+@pytest.mark.parametrize("tile", [8, 1024])
+def test_the_smallest_and_largest_tiles_are_accepted(camera, mesh, poses, tile):
+    quats, trans = poses
+    with Renderer(camera, mesh, tile=tile, max_batch=1) as r:
+        batch = r.silhouettes(quats[:1], trans[:1])
+    assert batch.masks.shape == (1, tile, tile) and batch.masks.any()
+
+
+@pytest.mark.parametrize("tile", [7, 1025])
+def test_tiles_outside_8_to_1024_pixels_are_refused(camera, mesh, tile):
+    with pytest.raises(ValueError, match="invalid renderer settings"):
+        Renderer(camera, mesh, tile=tile, max_batch=1)
+
+
+def test_an_atlas_exactly_at_the_context_limits_is_accepted(camera, mesh, monkeypatch):
+    """512 tiles of 64 px make a 2048 x 1024 atlas: limits of exactly that size allow it."""
+    ctx = gl_context()
+    monkeypatch.setitem(ctx.info, "GL_MAX_RENDERBUFFER_SIZE", 2048)
+    monkeypatch.setitem(ctx.info, "GL_MAX_VIEWPORT_DIMS", (2048, 1024))
+    Renderer(camera, mesh, tile=64, max_batch=512).release()
+
+
+def test_the_texture_limit_applies_to_the_image_only(camera, mesh, monkeypatch):
+    """The atlas is a renderbuffer: a texture limit below its 2048 px but above the 1280 x 720
+    image allows the renderer."""
+    monkeypatch.setitem(gl_context().info, "GL_MAX_TEXTURE_SIZE", 1536)
+    Renderer(camera, mesh, tile=64, max_batch=512).release()
+
+
+def test_shaded_refuses_sample_counts_outside_one_to_the_context_maximum(camera, renderer):
+    background = np.zeros((camera.height, camera.width, 3), np.uint8)
+    for samples in (0, renderer.ctx.max_samples + 1):
+        with pytest.raises(ValueError, match="samples must be"):
+            renderer.shaded(side_view_quat(), [0.0, 0.0, 6.0], background, samples=samples)
+
+
+def test_release_frees_the_multisampled_targets_of_shaded_views(camera, mesh, monkeypatch):
+    """Each sample count used by ``shaded`` makes a colour + depth target: released with the renderer."""
+    ctx = gl_context()
+    made = []
+    for name in ("framebuffer", "renderbuffer", "depth_renderbuffer"):
+        def record(*args, _make=getattr(ctx, name), **kwargs):
+            made.append(_make(*args, **kwargs))
+            return made[-1]
+
+        monkeypatch.setattr(ctx, name, record)
+    r = Renderer(camera, mesh, tile=TILE, max_batch=2)
+    background = np.zeros((camera.height, camera.width, 3), np.uint8)
+    for samples in (1, 4):
+        r.shaded(side_view_quat(), [0.0, 0.0, 6.0], background, samples=samples)
+    r.release()
+    assert [type(obj).__name__ for obj in made if type(obj.mglo).__name__ != "InvalidObject"] == []

@@ -92,3 +92,23 @@ def test_tile_box_visibility_needs_the_near_plane_and_an_overlap_with_the_image(
     rot, t = pose_matrices(IDENTITY[None], np.array([[0.0, 0.0, 10.0]]))
     boxes, visible = tile_boxes(K, 100, 80, rot, t, near, margin=0.0)
     assert not visible[0] and np.isnan(boxes[0]).all()
+
+
+def test_tile_box_above_the_image_is_visible_while_its_bottom_edge_is_over_row_0():
+    hull = _plate(0.5, 0.5)  # 10 × 10 px at 10 m: box side 12 with no margin
+    trans = np.array([
+        [0.0, (-6.4 - 40.0) / 10.0, 10.0],  # bottom edge at −0.4: over the first row
+        [0.0, (-6.6 - 40.0) / 10.0, 10.0],  # bottom edge at −0.6: above the image
+        [0.0, (-3.0 - 40.0) / 10.0, 10.0],  # top edge at −9, bottom edge at 3: partly inside
+    ])
+    rot, t = pose_matrices(np.tile(IDENTITY, (len(trans), 1)), trans)
+    boxes, visible = tile_boxes(K, 100, 80, rot, t, hull, margin=0.0)
+    np.testing.assert_allclose(boxes[:, 3], [-0.4, -0.6, 3.0], atol=1e-9)
+    np.testing.assert_array_equal(visible, [True, False, True])
+
+
+@pytest.mark.parametrize("trans", [np.zeros((1, 4)), np.zeros((2, 3)), np.zeros(3), np.array([[0.0, np.nan, 10.0]]),
+                                   np.array([[np.inf, 0.0, 10.0]])])
+def test_pose_matrices_refuse_translations_of_another_shape_or_not_finite(trans):
+    with pytest.raises(ValueError):
+        pose_matrices(IDENTITY[None], trans)

@@ -228,3 +228,66 @@ def test_poses_too_near_the_camera_leave_the_other_tiles_of_a_large_model_untouc
             single = one.silhouettes(quats[i : i + 1], trans[i : i + 1])
             assert single.masks[0].any()
             assert (single.masks[0] != batch.masks[i]).sum() <= 2
+
+
+@pytest.mark.parametrize("rotvec, lit_side", [([0.0, np.pi / 4, 0.0], "right"),
+                                              ([np.pi / 4, 0.0, 0.0], "top"),
+                                              ([0.0, 0.0, 0.0], "front")])
+def test_the_default_light_is_above_right_and_behind_the_camera(rotvec, lit_side):
+    """A cube showing two faces: of those turned 45° right and left, the right one is brighter; of
+    those turned up and down, the upper one; a face towards the camera is lit beyond the ambient."""
+    corners, faces = _cube([0.0, 0.0, 0.0], 0.5, 0.0)
+    camera = CameraModel(320, 240, np.array([[300.0, 0.0, 159.5], [0.0, 300.0, 119.5], [0.0, 0.0, 1.0]]))
+    albedo = np.array([0.8, 0.7, 0.6])
+    with Renderer(camera, Mesh(corners, faces), tile=32, max_batch=1) as r:
+        rgb, alpha = r.shaded(Rotation.from_rotvec(rotvec).as_quat(), [0.0, 0.0, 4.0],
+                              np.zeros((240, 320, 3), np.uint8), albedo=tuple(albedo))
+    grey = np.where(alpha == 1.0, rgb.mean(axis=2), np.nan)
+    if lit_side == "right":
+        assert np.nanmean(grey[:, 165:]) > np.nanmean(grey[:, :155]) + 20
+    elif lit_side == "top":
+        assert np.nanmean(grey[:115]) > np.nanmean(grey[125:]) + 20
+    else:
+        assert np.nanmin(grey) > 255 * albedo.mean() * 0.35 + 20
+
+
+def test_a_model_a_few_centimetres_beyond_the_near_plane_is_drawn():
+    """The near plane is 5 cm from the camera: a 6.5 cm quadrilateral 10–14 cm away is visible,
+    in its tile and exactly at image resolution."""
+    small = Mesh(0.05 * QUAD, QUAD_MESH.faces)
+    quat, trans = _pose([0.4, -0.3, 0.2], [0.004, -0.002, 0.12])
+    p = 0.05 * QUAD @ Rotation.from_quat(quat).as_matrix().T + trans
+    assert 0.1 < p[:, 2].min() and p[:, 2].max() < 0.14
+    uvw = p @ ANISOTROPIC.K.T
+    corners = uvw[:, :2] / uvw[:, 2:]
+    with Renderer(ANISOTROPIC, small, tile=TILE, max_batch=1) as r:
+        batch = r.silhouettes(quat[None], trans[None])
+        full = r.silhouette_full(quat, trans)
+    assert batch.visible[0] and batch.masks[0].sum() > 200
+    v, u = np.mgrid[0 : ANISOTROPIC.height, 0 : ANISOTROPIC.width].astype(float)
+    expected = _inside(corners, u, v)
+    judged = expected >= 0
+    assert expected[judged].sum() > 2000
+    np.testing.assert_array_equal(full[judged], expected[judged] == 1)
+
+
+def test_a_model_straddling_the_near_plane_is_cut_there_at_image_resolution():
+    """A tilted 6.5 cm quadrilateral 3.5–7.5 cm from the camera: the full frame holds exactly the
+    projection of its part beyond the 5 cm near plane (the polygon clipped at z = 0.05 m)."""
+    quat, trans = _pose([np.pi / 3, 0.0, 0.0], [0.0, 0.0, 0.055])
+    p = 0.05 * QUAD @ Rotation.from_quat(quat).as_matrix().T + trans
+    assert p[:, 2].min() < 0.04 and p[:, 2].max() > 0.07
+    kept = []
+    for a, b in zip(p, np.roll(p, -1, axis=0)):  # Sutherland–Hodgman against z >= 0.05
+        if a[2] >= 0.05:
+            kept.append(a)
+        if (a[2] - 0.05) * (b[2] - 0.05) < 0:
+            kept.append(a + (0.05 - a[2]) / (b[2] - a[2]) * (b - a))
+    uvw = np.array(kept) @ ANISOTROPIC.K.T
+    with Renderer(ANISOTROPIC, Mesh(0.05 * QUAD, QUAD_MESH.faces), tile=TILE, max_batch=1) as r:
+        full = r.silhouette_full(quat, trans)
+    v, u = np.mgrid[0 : ANISOTROPIC.height, 0 : ANISOTROPIC.width].astype(float)
+    expected = _inside(uvw[:, :2] / uvw[:, 2:], u, v)
+    judged = expected >= 0
+    assert expected[judged].sum() > 2000 and (expected[judged] == 0).sum() > 2000
+    np.testing.assert_array_equal(full[judged], expected[judged] == 1)
