@@ -8,7 +8,7 @@ import pytest
 from uav_landing_vision.camera import CameraModel, save_camera_info_yaml
 from uav_landing_vision.geometry import matrix_to_euler_zyx, quat_to_matrix
 from uav_landing_vision.sim import ScenarioError, generators, load_scenario, make_trajectory
-from uav_landing_vision.sim.config import ApproachConfig, ImagingConfig, ShipConfig, validate
+from uav_landing_vision.sim.config import ApproachConfig, ImagingConfig, ShipConfig, SingleFrameConfig, validate
 from uav_landing_vision.sim.simulate import scenario_camera
 from uav_landing_vision.sim.trajectory import SmoothSignal, camera_mount
 
@@ -229,3 +229,114 @@ def test_approach_banks_into_its_turns():
         lean = np.einsum("ni,ni->n", rot[:, :2, 2], left)
         turning = np.abs(lateral) > 0.5  # m/s²: a bank of 3° or more
         assert turning.sum() > 20 and np.all(np.sign(lean[turning]) == np.sign(lateral[turning]))
+
+
+def test_the_frame_limit_admits_an_approach_of_exactly_that_many_frames(monkeypatch):
+    from uav_landing_vision.sim import trajectory
+
+    s = load_scenario("normal")
+    monkeypatch.setattr(trajectory, "MAX_FRAMES", 1)
+    with pytest.raises(ScenarioError, match=r"may take up to (\d+) frames \(at most 1\)") as err:
+        make_trajectory(s, generators(3))
+    n = int(err.value.args[0].split("up to ")[1].split()[0])
+    monkeypatch.setattr(trajectory, "MAX_FRAMES", n)
+    assert len(make_trajectory(s, generators(3))) <= n
+    monkeypatch.setattr(trajectory, "MAX_FRAMES", n - 1)
+    with pytest.raises(ScenarioError, match=f"up to {n} frames"):
+        make_trajectory(s, generators(3))
+
+
+def test_the_uav_and_the_ship_draw_from_their_own_streams():
+    """Another ship stream changes only the camera's motion, another UAV stream only the UAV's path."""
+    s = load_scenario("normal")
+    base = make_trajectory(s, generators(3))
+    other_ship = make_trajectory(s, {**generators(3), "ship": generators(4)["ship"]})
+    np.testing.assert_array_equal(other_ship.uav_pos, base.uav_pos)
+    assert not np.allclose(other_ship.cam_rot, base.cam_rot)
+    other_uav = make_trajectory(s, {**generators(3), "uav": generators(4)["uav"]})
+    n = min(len(base), len(other_uav))
+    np.testing.assert_array_equal(other_uav.cam_rot[:n], base.cam_rot[:n])
+    np.testing.assert_array_equal(other_uav.cam_pos[:n], base.cam_pos[:n])
+    assert not np.allclose(other_uav.uav_pos[:n], base.uav_pos[:n])
+
+
+@pytest.mark.parametrize("text, match", [
+    ("approach: {}\nstart_time_s: 2147483648\n", "start_time_s must be in"),
+    ("approach: {start_range_m: [10, 20]}\n", "start_range_m must be"),
+    ("approach: {start_range_m: [20, 40]}\nship: {camera_position_m: [0, 0, 30]}\n",
+     r"start_range_m must start beyond the net \(30.0 m from the camera\)"),
+    ("approach: {start_range_m: [30, 40]}\nship: {camera_position_m: [30, 0, 0]}\n", "must start beyond the net"),
+    ("approach: {}\nship: {net_height_m: 2.0, camera_position_m: [5, 0, -2]}\n",
+     "the camera must be above the waterline"),
+    ("approach: {alpha2_deg: 0}\n", "0 < alpha2_deg < alpha1_deg < 45"),
+    ("approach: {alpha1_deg: 45}\n", "0 < alpha2_deg < alpha1_deg < 45"),
+    ("approach: {beta2_deg: 0}\n", "beta2_deg must be in"),
+    ("approach: {beta2_deg: 90}\n", "beta2_deg must be in"),
+    ("approach: {roll_near_deg: -1}\n", "approach.roll_near_deg must be non-negative"),
+    ("approach: {pitch_far_deg: -1}\n", "approach.pitch_far_deg must be non-negative"),
+    ("approach: {pitch_near_deg: -1}\n", "approach.pitch_near_deg must be non-negative"),
+    ("approach: {yaw_far_deg: -1}\n", "approach.yaw_far_deg must be non-negative"),
+    ("approach: {}\nship: {roll_deg: -1}\n", "ship.roll_deg must be non-negative"),
+    ("approach: {}\nship: {yaw_deg: -1}\n", "ship.yaw_deg must be non-negative"),
+    ("approach: {airspeed_mps: 8.0}\nship: {speed_mps: 8.0}\n", "airspeed_mps must exceed ship.speed_mps"),
+    ("approach: {disturbance_band_hz: [0, 0.5]}\n", "disturbance_band_hz"),
+    ("approach: {disturbance_band_hz: [0.5, 0.5]}\n", "disturbance_band_hz"),
+    ("approach: {path_wander_deg: -1}\n", "wander/jitter must be non-negative"),
+    ("approach: {speed_jitter_mps: -0.1}\n", "wander/jitter must be non-negative"),
+    ("single_frame: {distances_m: []}\n", "distances_m must be positive"),
+    ("single_frame: {angle_limit_deg: 0}\n", "angle_limit_deg must be in"),
+    ("approach: {}\nship: {wave_period_s: [0, 5]}\n", "wave_period_s"),
+    ("approach: {}\nimaging: {noise_sigma: -1}\n", "non-negative noise/blur"),
+    ("approach: {}\nimaging: {exposure_fraction: -0.1}\n", "non-negative noise/blur"),
+    ("approach: {}\nimaging: {max_blur_px: -1}\n", "non-negative noise/blur"),
+])
+def test_each_range_end_and_listed_value_is_checked(tmp_path, text, match):
+    path = tmp_path / "bad.yaml"
+    path.write_text(text)
+    with pytest.raises(ScenarioError, match=match):
+        load_scenario(path)
+
+
+@pytest.mark.parametrize("text", [
+    "dt_s: 1.0e-6\napproach: {}\n",
+    "start_time_s: 0\napproach: {}\n",
+    "approach: {}\nbackground: {sun_elevation_deg: 0}\n",
+    "approach: {}\nbackground: {sun_elevation_deg: 90}\n",
+    "approach: {start_range_m: [80, 80]}\n",
+    "single_frame: {distances_m: [5], poses_per_distance: 1000000}\n",
+    "approach: {}\nship: {wave_period_s: [6, 6]}\n",
+    "approach: {}\nimaging: {albedo: [0, 1, 0.5]}\n",
+])
+def test_values_on_the_closed_ends_of_their_ranges_are_accepted(tmp_path, text):
+    path = tmp_path / "edge.yaml"
+    path.write_text(text)
+    load_scenario(path)
+
+
+def test_validate_refuses_a_sun_azimuth_that_is_not_finite():
+    s = load_scenario("normal")
+    with pytest.raises(ScenarioError, match="sun_azimuth_deg must be finite"):
+        validate(replace(s, background=replace(s.background, sun_azimuth_deg=float("inf"))))
+
+
+def test_a_scenario_keeps_its_own_name_and_an_empty_single_frame_section(tmp_path):
+    path = tmp_path / "file_name.yaml"
+    path.write_text("name: landing_42\nsingle_frame:\n")
+    s = load_scenario(path)
+    assert s.name == "landing_42" and s.single_frame == SingleFrameConfig() and s.approach is None
+
+
+def test_a_file_beside_the_scenario_wins_over_the_shipped_one_and_a_video_is_never_taken_from_config(tmp_path):
+    other = CameraModel(640, 480, [[800.0, 0, 320.0], [0, 800.0, 240.0], [0, 0, 1]])
+    save_camera_info_yaml(other, tmp_path / "camera.yaml")  # also the name of the shipped calibration
+    (tmp_path / "s.yaml").write_text("camera_info: camera.yaml\napproach: {}\nbackground: {video: tracker.yaml}\n")
+    s = load_scenario(tmp_path / "s.yaml")
+    assert s.camera_info == str((tmp_path / "camera.yaml").resolve())
+    assert scenario_camera(s).K[0, 0] == 800.0
+    assert s.background.video == str((tmp_path / "tracker.yaml").resolve())  # not config/tracker.yaml
+
+
+def test_a_shipped_name_is_not_taken_from_the_working_directory(tmp_path, monkeypatch):
+    (tmp_path / "normal").mkdir()
+    monkeypatch.chdir(tmp_path)
+    assert load_scenario("normal").approach is not None

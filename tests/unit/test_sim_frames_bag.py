@@ -535,3 +535,193 @@ def test_poses_with_covariance_are_read(tmp_path):
     assert poses.stamps_ns.tolist() == [s for s, _ in items]
     np.testing.assert_array_equal(poses.trans, [t for t, _ in expected])
     np.testing.assert_array_equal(poses.quat, [q for _, q in expected])
+
+
+def _small_lens(scenario, folder):
+    """``scenario`` with a 160×120 camera (a distorted one), whose background and maps are quick to make."""
+    from uav_landing_vision.camera import save_camera_info_yaml
+
+    lens = CameraModel(160, 120, np.array([[150.0, 0.0, 80.0], [0.0, 150.0, 60.0], [0.0, 0.0, 1.0]]),
+                       np.array([-0.1, 0.02, 0.0, 0.0, 0.0]), FRAME)
+    save_camera_info_yaml(lens, folder / "lens.yaml")
+    return dataclasses.replace(scenario, camera_info=str(folder / "lens.yaml"))
+
+
+def _blank_frames(monkeypatch):
+    """Make FrameSynthesizer.frame return a black frame (no rendering)."""
+    def blank(self, background, quat, trans, light_dir, blur_shift_px, rng):
+        return np.zeros((self.camera.height, self.camera.width, 3), np.uint8), None
+
+    monkeypatch.setattr(FrameSynthesizer, "frame", blank)
+
+
+def test_the_bag_holds_the_trajectorys_poses_and_the_background_each_frames_time_and_camera(tmp_path, monkeypatch):
+    import importlib
+
+    sim_simulate = importlib.import_module("uav_landing_vision.sim.simulate")
+    _blank_frames(monkeypatch)
+    seen, make = [], sim_simulate.make_background
+
+    def recording(*args, **kwargs):
+        background = make(*args, **kwargs)
+        frame = background.frame
+        background.frame = lambda i, t, rot, pos: seen.append((i, t, rot, pos)) or frame(i, t, rot, pos)
+        return background
+
+    monkeypatch.setattr(sim_simulate, "make_background", recording)
+    s = _small_lens(load_scenario("normal"), tmp_path)
+    s = dataclasses.replace(s, approach=dataclasses.replace(s.approach, start_range_m=(12.0, 14.0)))
+    simulate(s, tmp_path / "bag", seed=4, frames=4, progress=False, mesh=MESH)
+    tr = make_trajectory(s, generators(4)).head(4)
+    truth = read_poses(tmp_path / "bag")
+    assert truth.stamps_ns.tolist() == [1_700_000_000 * 10**9 + k * 34_000_000 for k in range(4)]
+    np.testing.assert_array_equal(truth.trans, tr.trans)
+    np.testing.assert_array_equal(truth.quat, tr.quat)
+    assert [i for i, *_ in seen] == [0, 1, 2, 3]
+    for (_, t, rot, pos), k in zip(seen, range(4), strict=True):
+        assert t == tr.times_s[k]
+        np.testing.assert_array_equal(rot, tr.cam_rot[k])
+        np.testing.assert_array_equal(pos, tr.cam_pos[k])
+
+
+def test_stamps_are_whole_steps_of_dt_in_ns():
+    from uav_landing_vision.sim.simulate import stamps_ns
+
+    s = dataclasses.replace(load_scenario("normal"), start_time_s=1_600_000_000.0, dt_s=0.3)
+    stamps = stamps_ns(s, np.arange(40) * s.dt_s)  # 3 × 0.3 is 0.8999999999999999
+    assert stamps.tolist() == [1_600_000_000 * 10**9 + k * 300_000_000 for k in range(40)]
+
+
+def test_a_frame_stamped_exactly_at_2_31_s_is_refused(tmp_path):
+    s = dataclasses.replace(load_scenario("normal"), start_time_s=2**31 - 1, dt_s=0.5)
+    with pytest.raises(ScenarioError, match=r"frame 2 would be stamped 2147483648.000 s"):
+        simulate(s, tmp_path / "bag", frames=3, progress=False, mesh=MESH)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_staging_folder_left_by_a_killed_run_is_replaced_and_none_is_left(tmp_path, monkeypatch):
+    _blank_frames(monkeypatch)
+    (tmp_path / "bag.partial" / "bag").mkdir(parents=True)
+    (tmp_path / "bag.partial" / "bag" / "stale.mcap").write_bytes(b"x")
+    s = _small_lens(load_scenario("normal"), tmp_path)
+    simulate(s, tmp_path / "bag", frames=2, png_dir=tmp_path / "png", progress=False, mesh=MESH)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bag", "lens.yaml", "png"]
+    assert not (tmp_path / "bag" / "stale.mcap").exists() and len(read_poses(tmp_path / "bag").stamps_ns) == 2
+
+
+def test_every_frame_of_a_sequence_can_be_asked_for_and_no_more(tmp_path, monkeypatch):
+    _blank_frames(monkeypatch)
+    s = _small_lens(load_scenario("single_frame"), tmp_path)
+    few = dataclasses.replace(s.single_frame, distances_m=(5.0, 9.0), poses_per_distance=2)
+    s = dataclasses.replace(s, single_frame=few)
+    assert simulate(s, tmp_path / "bag", frames=4, progress=False, mesh=MESH).frames == 4
+    with pytest.raises(ScenarioError, match="has 4 frames; --frames 5 is too many"):
+        simulate(s, tmp_path / "other", frames=5, progress=False, mesh=MESH)
+
+
+def test_the_png_folder_is_complete_once_the_writer_is_closed(tmp_path):
+    """Read back while the writer object still exists: the CSV has every row, and the folder's
+    camera_info.yaml is the camera."""
+    from uav_landing_vision.camera import load_camera_info_yaml
+
+    stamps, images, trans, quat = _frames(3, np.random.default_rng(6))
+    camera = CameraModel(40, 30, K, np.array([-0.1, 0.02, 0.001, -0.002, 0.003]), FRAME)
+    writer = SequenceWriter(tmp_path / "bag", camera, png_dir=tmp_path / "png")
+    for s, img, t, q in zip(stamps, images, trans, quat):
+        writer.write(s, img, t, q)
+    writer.close()
+    poses = read_poses(tmp_path / "png")
+    assert poses.stamps_ns.tolist() == stamps
+    np.testing.assert_array_equal(poses.quat, quat)
+    read = load_camera_info_yaml(tmp_path / "png" / "camera_info.yaml")
+    np.testing.assert_array_equal(read.K, K)
+    np.testing.assert_array_equal(read.dist, camera.dist)
+
+
+def test_a_png_folder_that_exists_is_refused_before_the_bag_is_made(tmp_path):
+    (tmp_path / "png").mkdir()
+    camera = CameraModel(40, 30, K, np.zeros(5), FRAME)
+    with pytest.raises(FileExistsError):
+        SequenceWriter(tmp_path / "bag", camera, png_dir=tmp_path / "png")
+    assert not (tmp_path / "bag").exists() and list((tmp_path / "png").iterdir()) == []
+
+
+def test_mono8_frames_are_read_as_grey_rgb(tmp_path):
+    grey = np.random.default_rng(3).integers(0, 256, (5, 7), dtype=np.uint8)
+    m = TS.types
+    header = m["std_msgs/msg/Header"](stamp=m["builtin_interfaces/msg/Time"](sec=1, nanosec=0), frame_id="c")
+    msg = m["sensor_msgs/msg/Image"](header=header, height=5, width=7, encoding="mono8", is_bigendian=0, step=9,
+                                     data=np.concatenate([grey, np.zeros((5, 2), np.uint8)], axis=1).reshape(-1))
+    _write_bag(tmp_path / "bag", {sim_bag.IMAGE_TOPIC: [(10**9, msg)]})
+    (_, image), = sim_bag.iter_frames(tmp_path / "bag")
+    np.testing.assert_array_equal(image, np.repeat(grey[..., None], 3, axis=2))
+
+
+def test_compressed_grey_frames_are_read_as_grey_rgb(tmp_path):
+    grey = np.random.default_rng(4).integers(0, 256, (6, 8), dtype=np.uint8)
+    m = TS.types
+    header = m["std_msgs/msg/Header"](stamp=m["builtin_interfaces/msg/Time"](sec=1, nanosec=0), frame_id="c")
+    msg = m["sensor_msgs/msg/CompressedImage"](header=header, format="mono8; png compressed mono8",
+                                               data=cv2.imencode(".png", grey)[1].ravel())
+    _write_bag(tmp_path / "bag", {sim_bag.COMPRESSED_IMAGE_TOPIC: [(10**9, msg)]})
+    (_, image), = sim_bag.iter_frames(tmp_path / "bag")
+    np.testing.assert_array_equal(image, np.repeat(grey[..., None], 3, axis=2))
+
+
+def test_a_named_image_topic_is_read_even_after_another_image_topic(tmp_path):
+    rng = np.random.default_rng(7)
+    left = [(10**9 * (i + 1), _image_msg(10**9 * (i + 1), rng.integers(0, 256, (4, 6, 3), dtype=np.uint8)))
+            for i in range(2)]
+    right = [(s + 1000, _image_msg(s + 1000, rng.integers(0, 256, (4, 6, 3), dtype=np.uint8))) for s, _ in left]
+    _write_bag(tmp_path / "bag", {"/left/image_raw": left, "/right/image_raw": right})
+    assert [s for s, _ in sim_bag.iter_frames(tmp_path / "bag", "/right/image_raw")] == [s for s, _ in right]
+
+
+def test_a_bag_of_compressed_frames_only_has_no_ground_truth(tmp_path):
+    _compressed_recording(tmp_path / "bag", [(1, 0)])
+    with pytest.raises(ValueError, match=r"no topic /uav/ground_truth; has \['/camera/image_raw/compressed"):
+        read_poses(tmp_path / "bag")
+
+
+def test_a_message_that_does_not_deserialise_is_a_value_error_naming_the_topic(tmp_path):
+    with Writer(tmp_path / "bag", version=Writer.VERSION_LATEST, storage_plugin=StoragePlugin.MCAP) as writer:
+        conn = writer.add_connection(sim_bag.TRUTH_TOPIC, "geometry_msgs/msg/PoseStamped", typestore=TS)
+        writer.write(conn, 10**9, b"\x00\x01\x00\x00\x05")
+    with pytest.raises(ValueError, match=r"cannot read /uav/ground_truth of bag .*Could not deserialize"):
+        read_poses(tmp_path / "bag")
+
+
+def _info_msg(camera, frame_id):
+    m = TS.types
+    header = m["std_msgs/msg/Header"](stamp=m["builtin_interfaces/msg/Time"](sec=1, nanosec=0), frame_id=frame_id)
+    roi = m["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
+    P = np.hstack([camera.K, np.zeros((3, 1))])
+    return m["sensor_msgs/msg/CameraInfo"](header=header, height=camera.height, width=camera.width,
+                                           distortion_model="plumb_bob", d=camera.dist.astype(float),
+                                           k=camera.K.ravel(), r=np.eye(3).ravel(), p=P.ravel(), binning_x=0,
+                                           binning_y=0, roi=roi)
+
+
+def test_read_camera_takes_the_first_message_and_a_default_frame_id_for_none(tmp_path):
+    from uav_landing_vision.camera import DEFAULT_FRAME_ID
+
+    first = CameraModel(40, 30, K, np.zeros(5), FRAME)
+    later = CameraModel(40, 30, K * [[2.0], [2.0], [1.0]], np.zeros(5), FRAME)
+    infos = [(10**9, _info_msg(first, "")), (2 * 10**9, _info_msg(later, "x"))]
+    _write_bag(tmp_path / "bag", {sim_bag.INFO_TOPIC: infos})
+    read = read_camera(tmp_path / "bag")
+    np.testing.assert_array_equal(read.K, K)
+    assert read.frame_id == DEFAULT_FRAME_ID
+
+
+def test_pose_csv_reads_the_extreme_64_bit_stamps(tmp_path):
+    rows = f"{-(2**63)},0,0,0,0,0,0,1\n{2**63 - 1},0,0,0,0,0,0,1\n"
+    (tmp_path / "p.csv").write_text("stamp_ns,x,y,z,qx,qy,qz,qw\n" + rows)
+    assert read_pose_csv(tmp_path / "p.csv").stamps_ns.tolist() == [-(2**63), 2**63 - 1]
+
+
+def test_frames_read_back_can_be_drawn_on(tmp_path):
+    """An rgb8 frame is a writable array of its own, not a view of the message's bytes."""
+    for _, image in iter_frames(_small_sequence(tmp_path / "bag", frames=2)):
+        image[0, 0] = (255, 0, 0)  # raises for a read-only view
+        assert image[0, 0].tolist() == [255, 0, 0]

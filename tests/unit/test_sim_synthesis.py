@@ -107,3 +107,67 @@ def test_simulate_passes_each_frame_the_clipped_exposure_smear_and_the_sun_in_th
     for i, call in enumerate(calls):
         np.testing.assert_allclose(call[0], tr.trans[i])
         np.testing.assert_allclose(tr.cam_rot[i] @ call[1], sun, atol=1e-9)
+
+
+@pytest.mark.parametrize("dist, spills", [([-0.3, 0.08, 0.002, -0.003, 0.0], True),
+                                          ([0.15, 0.0, 0.0, 0.0, 0.0], False)])
+def test_every_raw_pixels_ray_falls_inside_the_padded_render_camera(dist, spills):
+    """The maps send each raw pixel to the render-camera pixel of its ray (projected back through
+    the lens with cv2.projectPoints), which lies inside that camera: a few pixels from its edges
+    where barrel distortion spills the rays past the raw image, unpadded where pincushion
+    distortion keeps them inside."""
+    K = np.array([[300.0, 0.0, 165.0], [0.0, 290.0, 118.0], [0.0, 0.0, 1.0]])
+    cam = CameraModel(320, 240, K, np.array(dist), "cam")
+    render, mx, my = synthesis.render_camera_for(cam)
+    assert mx.shape == my.shape == (240, 320)
+    np.testing.assert_allclose(render.K[:2, :2], K[:2, :2])
+    x = (mx.astype(float) - render.K[0, 2]) / render.K[0, 0]
+    y = (my.astype(float) - render.K[1, 2]) / render.K[1, 1]
+    rays = np.stack([x.ravel(), y.ravel(), np.ones(x.size)], axis=-1)
+    raw, _ = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), K, np.array(dist))
+    u, v = np.meshgrid(np.arange(320.0), np.arange(240.0))
+    np.testing.assert_allclose(raw.reshape(240, 320, 2), np.stack([u, v], axis=-1), atol=2e-3)
+    margins = [mx.min(), my.min(), render.width - 1 - mx.max(), render.height - 1 - my.max()]
+    assert all(0.0 <= m for m in margins), margins
+    if spills:
+        assert all(m <= 3.0 for m in margins), margins
+    else:
+        assert (render.width, render.height) == (320, 240) and np.array_equal(render.K, K)
+
+
+def test_a_smear_of_one_pixel_already_blurs():
+    for shift in ([1.0, 0.0], [0.0, -1.0]):
+        kernel = motion_blur_kernel(np.array(shift))
+        assert kernel is not None and kernel.shape == (3, 3) and kernel.sum() == pytest.approx(1.0)
+        assert np.count_nonzero(kernel) >= 2
+
+
+def test_the_uav_is_lit_from_light_dir_the_direction_towards_the_sun(synth):
+    """Facing the camera, the UAV is brighter with the sun behind the camera (towards −z) than
+    with the sun behind the UAV (towards +z)."""
+    rc = synth.render_camera
+    bg = np.full((rc.height, rc.width, 3), GREY, np.uint8)
+    front, alpha = synth.frame(bg, FACING, [0.0, 0.0, 3.0], np.array([0.0, -0.3, -1.0]), np.zeros(2), None)
+    back, _ = synth.frame(bg, FACING, [0.0, 0.0, 3.0], np.array([0.0, -0.3, 1.0]), np.zeros(2), None)
+    uav = alpha > 0.99
+    assert uav.sum() > 50
+    assert front[uav].mean() > back[uav].mean() + 40
+
+
+@pytest.mark.parametrize("length", [1.0, 2.0, 3.0, 4.5, 5.0, 7.0, 8.0])
+def test_a_blur_kernel_has_an_odd_side_that_holds_the_smear(length):
+    for direction in ([1.0, 0.0], [0.0, -1.0], [0.6, 0.8]):
+        side = motion_blur_kernel(length * np.array(direction)).shape
+        assert side[0] == side[1] and side[0] % 2 == 1 and length + 1 <= side[0] < length + 3
+
+
+def test_the_blurred_frame_is_rounded_to_the_nearest_grey_level(synth):
+    """Over a uniform background the blurred frame is the premultiplied formula rounded, not
+    truncated: no bias where the smear reaches."""
+    (raw0, a0), (raw1, a1) = _frames(synth, (5.0, 2.0))
+    layer = raw0.astype(np.float32) - (1.0 - a0[..., None]) * GREY
+    k = motion_blur_kernel(np.array([5.0, 2.0]))
+    expected = cv2.filter2D(layer, -1, k, borderType=cv2.BORDER_CONSTANT) + (1.0 - a1[..., None]) * GREY
+    reached = a1 > 0.01
+    assert reached.sum() > 100
+    assert abs(np.mean(raw1[reached].astype(np.float32) - expected[reached])) < 0.2
