@@ -496,12 +496,18 @@ def test_frames_with_padded_rows_or_bgr8_are_read_as_rgb(tmp_path, encoding, pad
         np.testing.assert_array_equal(got, img)
 
 
-def test_frames_of_the_first_image_topic_only_when_no_topic_is_named(tmp_path):
-    rng = np.random.default_rng(2)
+def _two_camera_bag(path, count: int, seed: int):
+    """A bag of ``count`` random frames on /left/image_raw and, 1 µs after each, on /right/image_raw."""
+    rng = np.random.default_rng(seed)
     left = [(10**9 * (i + 1), _image_msg(10**9 * (i + 1), rng.integers(0, 256, (4, 6, 3), dtype=np.uint8)))
-            for i in range(3)]
+            for i in range(count)]
     right = [(s + 1000, _image_msg(s + 1000, rng.integers(0, 256, (4, 6, 3), dtype=np.uint8))) for s, _ in left]
-    _write_bag(tmp_path / "bag", {"/left/image_raw": left, "/right/image_raw": right})
+    _write_bag(path, {"/left/image_raw": left, "/right/image_raw": right})
+    return left, right
+
+
+def test_frames_of_the_first_image_topic_only_when_no_topic_is_named(tmp_path):
+    left, right = _two_camera_bag(tmp_path / "bag", 3, seed=2)
     frames = list(sim_bag.iter_frames(tmp_path / "bag", ""))
     assert len(frames) == 3
     stamps = [s for s, _ in frames]
@@ -669,11 +675,7 @@ def test_compressed_grey_frames_are_read_as_grey_rgb(tmp_path):
 
 
 def test_a_named_image_topic_is_read_even_after_another_image_topic(tmp_path):
-    rng = np.random.default_rng(7)
-    left = [(10**9 * (i + 1), _image_msg(10**9 * (i + 1), rng.integers(0, 256, (4, 6, 3), dtype=np.uint8)))
-            for i in range(2)]
-    right = [(s + 1000, _image_msg(s + 1000, rng.integers(0, 256, (4, 6, 3), dtype=np.uint8))) for s, _ in left]
-    _write_bag(tmp_path / "bag", {"/left/image_raw": left, "/right/image_raw": right})
+    _, right = _two_camera_bag(tmp_path / "bag", 2, seed=7)
     assert [s for s, _ in sim_bag.iter_frames(tmp_path / "bag", "/right/image_raw")] == [s for s, _ in right]
 
 
