@@ -499,6 +499,20 @@ def test_a_compressed_replay_of_part_of_the_graph_waits_for_the_frames_and_camer
     assert [v for k, v in told if k == "ready_topics"] == ["[/camera/camera_info]"]
 
 
+def test_a_replay_waits_for_every_other_nodes_own_links_on_the_ready_topics(tmp_path):
+    """The player sees only its own links; each other node started reports its own (``ready_nodes``)."""
+    bag = bag_of(tmp_path / "full", list(graph_module.RECORDED_TOPICS))
+    others = [n for n in GRAPH_NODES if n != PLAYER]
+    assert yaml.safe_load(dict(replay_overrides(GRAPH_NODES, bag, PIPELINE_TOPICS)[PLAYER])["ready_nodes"]) == others
+    assert yaml.safe_load(dict(plan(bag=bag)[1][PLAYER])["ready_nodes"]) == others
+    told = dict(plan(bag=bag, params=["bag_player:ready_topics=[/uav/pose]"])[1][PLAYER])
+    assert yaml.safe_load(told["ready_nodes"]) == others and told["ready_topics"] == "[/uav/pose]"
+    part = dict(plan(nodes="undistort,detector,bag_player", bag=bag)[1][PLAYER])
+    assert yaml.safe_load(part["ready_nodes"]) == ["undistort", "detector"]
+    own = plan(bag=bag, params=["bag_player:ready_topics=[/uav/pose]", "bag_player:ready_nodes=[tracker]"])[1][PLAYER]
+    assert [v for k, v in own if k == "ready_nodes"] == ["[tracker]"]
+
+
 def test_a_compressed_replay_without_undistort_still_starts_the_others(tmp_path):
     """The frame overrides of a node not started are not given (there is no such node to give them to)."""
     bag = bag_of(tmp_path / "packed", [COMPRESSED_FRAMES, "/camera/camera_info"])

@@ -4,7 +4,7 @@ also its replay order, pacing by header stamp, timed rate, readiness and settle 
 import threading
 
 import pytest
-from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PointStamped, PoseStamped
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
@@ -16,6 +16,7 @@ from test_node_common import SMALL_CAMERA, frame_entries, participant_of, ros, w
 
 from uav_landing_vision.config import ConfigError
 from uav_landing_vision.nodes import bag_player as bag_player_module
+from uav_landing_vision.nodes.base import LINKS_KEY, LandingNode
 from uav_landing_vision.nodes.bag_player import FRAME_LAG_NS, BagPlayer, BagPlayerConfig
 from uav_landing_vision.nodes.qos import RELIABLE_QOS, IMAGE_QOS
 from uav_landing_vision.stamps import stamp_ns
@@ -341,6 +342,7 @@ def test_missing_and_corrupt_bags_fail_start_up(ros, tmp_path):
         ({"mode": "paced", "ack_type": "nope_msgs/msg/Nope"}, "ack_type: 'nope_msgs/msg/Nope'"),
         ({"mode": "paced", "ack_topic": "camera/image~rect"}, "ack_topic: 'camera/image~rect' is not a valid topic name: .*tilde"),
         ({"ready_topics": ["/camera/image_raw", "uav pose"]}, "ready_topics: 'uav pose' is not a valid topic name: .*alphanumerics"),
+        ({"ready_nodes": ["tracker", "no/de"]}, "ready_nodes: 'no/de' is not a node name"),
     ],
 )
 def test_bad_parameters_fail_start_up(ros, tmp_path, params, message):
@@ -444,6 +446,43 @@ def test_a_paced_player_is_not_ready_until_its_acknowledgement_has_a_publisher(r
     ros.probe.create_publisher(PoseStamped, "/test/ack", RELIABLE_QOS)
     assert ros.spin_until(lambda: node._ack_sub.get_publisher_count())
     assert node._missing() == []
+
+
+class _Listener(LandingNode):
+    """A graph node taking /uav/ground_truth."""
+
+    def __init__(self, **kwargs):
+        super().__init__("listener", **kwargs)
+        self.create_subscription(PoseStamped, "/uav/ground_truth", lambda msg: None, RELIABLE_QOS)
+
+
+def _diagnostics(node_name: str, links: str | None) -> DiagnosticArray:
+    values = [KeyValue(key="received", value="0")] + ([] if links is None else [KeyValue(key=LINKS_KEY, value=links)])
+    return DiagnosticArray(status=[DiagnosticStatus(name=f"/{node_name}", hardware_id=node_name, values=values)])
+
+
+def test_a_ready_node_holds_the_player_until_its_own_links_on_ready_topics_are_up(ros, tmp_path):
+    """The player sees its own links only: another node's is up when that node says DDS matched
+    it with every peer it sees. Played over DDS with a real node, then each report by hand."""
+    bag = write_bag(tmp_path / "bag", [_truth(1_000_000_000)])
+    node = _player(ros, bag, ready_topics=["/uav/ground_truth"], ready_nodes=["listener", "peer"])
+    assert node._missing() == ["subscriber of /uav/ground_truth", "/diagnostics from listener", "/diagnostics from peer"]
+    ros.add(_Listener(context=ros.context))
+    assert ros.spin_until(lambda: node._missing() == ["/diagnostics from peer"])
+    assert ("sub", "/uav/ground_truth", 1, 1) in node._node_links["listener"]
+    down = "match of peer's subscription /uav/ground_truth with every peer"
+    node._on_diagnostics(_diagnostics("peer", "sub /uav/ground_truth 0/1; sub /elsewhere 0/1; pub /diagnostics 0/0"))
+    assert node._missing() == [f"{down} (0 of 1)"]  # links off the ready topics do not count
+    node._on_diagnostics(_diagnostics("peer", "sub /uav/ground_truth 0/0"))  # before it saw the player
+    assert node._missing() == [f"{down} (0 of 0)"]
+    node._on_diagnostics(_diagnostics("peer", None))
+    assert node._missing() == ["links in the /diagnostics of peer (not a node of this graph?)"]
+    node._on_diagnostics(_diagnostics("peer", "sub /uav/ground_truth one/1"))
+    assert node.counters["dropped"] == 1 and "/diagnostics of peer: not a link" in node.last_error
+    node._on_diagnostics(_diagnostics("peer", "sub /uav/ground_truth 1/1"))
+    assert node._missing() == []
+    assert node.play(ros.executor) == 0
+    assert node.counters["published"] == 1 and node._diagnostics_sub is None  # needed no more
 
 
 def test_a_bag_that_cannot_be_read_to_its_end_fails_the_playback(ros, tmp_path, monkeypatch):

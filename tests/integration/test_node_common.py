@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from geometry_msgs.msg import Pose
+from geometry_msgs.msg import Pose, PoseStamped
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -30,7 +30,7 @@ from sensor_msgs.msg import CameraInfo, Image
 from uav_landing_vision.camera import CameraInfoError, CameraModel, camera_info_fields
 from uav_landing_vision.config import ConfigError, load_node_parameters
 from uav_landing_vision.nodes import base
-from uav_landing_vision.nodes.base import LandingNode, run_node
+from uav_landing_vision.nodes.base import LandingNode, format_links, parse_links, run_node
 from uav_landing_vision.nodes.calibration import Calibration
 from uav_landing_vision.nodes.image import ImageError, image_to_numpy, image_to_rgb, numpy_to_image
 from uav_landing_vision.nodes.poses import numpy_to_pose, pose_to_numpy
@@ -517,6 +517,41 @@ def test_diagnostics_report_counters_and_the_last_error(ros):
     values = {kv.key: kv.value for kv in status.values}
     assert status.level == DiagnosticStatus.WARN and "bad thing" in status.message
     assert (values["received"], values["dropped"], values["published"], values["last_error"]) == ("2", "1", "0", "bad thing")
+
+
+def test_a_nodes_links_show_what_dds_matched_against_what_the_node_sees_and_reach_its_diagnostics(ros):
+    """A publisher before and after a subscriber of it appears; the image participant's publishers
+    count as the node's; rclpy's own /rosout and /parameter_events are left out."""
+    node = ros.add(_Probe(context=ros.context))
+    pose_pub = node.create_publisher(PoseStamped, "/uav/pose", RELIABLE_QOS)
+    node.create_image_publisher(Image, "camera/image_rect", IMAGE_QOS)
+    node.create_subscription(PoseStamped, "/uav/ground_truth", lambda msg: None, RELIABLE_QOS)
+    links = {(kind, topic): (matched, seen) for kind, topic, matched, seen in node.links()}
+    assert links[("pub", "/uav/pose")] == (0, 0) and links[("sub", "/uav/ground_truth")] == (0, 0)
+    assert ("pub", "/camera/image_rect") in links and ("pub", "/diagnostics") in links
+    assert not {topic for _, topic in links} & {"/rosout", "/parameter_events"}
+    ros.collect(PoseStamped, "/uav/pose", RELIABLE_QOS)
+    ros.collect(Image, "/camera/image_rect", IMAGE_QOS)
+    ros.probe.create_publisher(PoseStamped, "/uav/ground_truth", RELIABLE_QOS)
+    up = lambda: all(0 < seen == matched for kind, topic, matched, seen in node.links() if topic != "/diagnostics")  # noqa: E731
+    assert ros.spin_until(up)
+    assert pose_pub.get_subscription_count() == 1
+    diagnostics = ros.collect(DiagnosticArray, "/diagnostics", RELIABLE_QOS)
+    assert ros.spin_until(lambda: any(s.hardware_id == "config_probe" for a in diagnostics for s in a.status))
+    status = next(s for a in diagnostics for s in a.status if s.hardware_id == "config_probe")
+    text = next(kv.value for kv in status.values if kv.key == base.LINKS_KEY)
+    reported = {(kind, topic): (matched, seen) for kind, topic, matched, seen in parse_links(text)}
+    assert reported[("pub", "/uav/pose")] == (1, 1) and reported[("sub", "/uav/ground_truth")] == (1, 1)
+    assert reported[("pub", "/camera/image_rect")] == (1, 1)
+
+
+def test_links_read_back_as_written_and_anything_else_is_refused():
+    links = [("pub", "/uav/pose", 2, 3), ("sub", "/camera/image_rect", 1, 1)]
+    assert format_links(links) == "pub /uav/pose 2/3; sub /camera/image_rect 1/1"
+    assert parse_links(format_links(links)) == links and parse_links("") == []
+    for bad in ("pub /uav/pose 2", "get /uav/pose 1/1", "pub uav/pose 1/1", "sub /a 1/x", "sub /a -1/1", "pub /a b 1/1"):
+        with pytest.raises(ValueError, match="not a link"):
+            parse_links(bad)
 
 
 def test_stamp_cache_size_must_be_positive():

@@ -5,7 +5,8 @@ One process per node, parameters from the installed ``share/uav_landing_vision/c
 
 - ``bag:=/path/to/bag`` replays a recorded landing with ``bag_player`` (paced on the tracker's
   status: every frame tracked) once every link of the
-  graph is up (those of the recorded inputs the bag has: ``replay_ready_topics``), every node on
+  graph is up (those of the recorded inputs the bag has: ``replay_ready_topics``; matched by DDS
+  as every node sees it: ``ready_nodes``), every node on
   the bag's time (``use_sim_time``, the player publishing ``/clock``), and shuts the graph down
   ``DRAIN_S`` after the bag ends (for the last frames' poses); without it the graph runs on the
   live camera.
@@ -53,6 +54,7 @@ def _nodes(context):
     actions = [node(name, sim_time + ([frames[name]] if name in frames else [])) for name in NODES]
     if bag:
         player = node(PLAYER, [{"bag": bag, "clock": True, "ready_topics": list(replay_ready_topics(bag, remaps)),
+                                "ready_nodes": list(NODES),
                                 **dict(TRACKER_ACK), **frames.get(PLAYER, {})}])
         actions += [
             player,

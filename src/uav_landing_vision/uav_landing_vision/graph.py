@@ -88,6 +88,11 @@ def ready_topics_parameter(topics=PIPELINE_TOPICS) -> str:
     return json.dumps(list(topics))
 
 
+def ready_nodes_parameter(names) -> str:
+    """The nodes of ``names`` but the player as the value of a ``-p ready_nodes:=...`` override."""
+    return json.dumps([n for n in names if n != PLAYER])
+
+
 def replay_ready_topics(bag, remaps=None) -> tuple[str, ...]:
     """:data:`PIPELINE_TOPICS` less the :data:`RECORDED_TOPICS` that ``bag`` lacks (all of them
     when it cannot be read: bag_player reports that at start-up), every name taken through the
@@ -171,14 +176,16 @@ def replay_overrides(names, bag, ready_topics=None) -> dict:
     publishes ``/clock``, every other node runs on that clock (as with ``ros2 bag play --clock``: a
     replayed pose is then not stale); given ``ready_topics`` (e.g. :func:`replay_ready_topics`),
     the player first waits for those links, or the first frames (and their ground truth, which
-    the evaluator then never counts) are lost to the nodes still starting. With the tracker in
-    the graph, a paced player waits for its status (:data:`TRACKER_ACK`)."""
+    the evaluator then never counts) are lost to the nodes still starting, and, as seen by each
+    other node (``ready_nodes``), for every link among them on those topics. With the tracker
+    in the graph, a paced player waits for its status (:data:`TRACKER_ACK`)."""
     overrides = {n: [] if n == PLAYER else [("use_sim_time", "true")] for n in names}
     overrides[PLAYER] += [("bag", string_parameter(Path(bag).resolve())), ("clock", "true")]
     if "tracker" in names:
         overrides[PLAYER] += list(TRACKER_ACK)
     if ready_topics is not None:
         overrides[PLAYER].append(("ready_topics", ready_topics_parameter(ready_topics)))
+        overrides[PLAYER].append(("ready_nodes", ready_nodes_parameter(names)))
     return overrides
 
 
@@ -297,6 +304,8 @@ def _plan(args, remaps=None) -> tuple[list[str], dict]:
         if frames and not (whole or told):  # the parameter file's inputs, the frames' topic swapped
             ready = tuple(t for t in _ready_topics(recorded, remaps) if t in (COMPRESSED_FRAMES, "/camera/camera_info"))
         overrides = replay_overrides(names, args.bag, ready)
+        if ready is None and not any(i.startswith(f"{PLAYER}:ready_nodes=") for i in args.param):
+            overrides[PLAYER].append(("ready_nodes", ready_nodes_parameter(names)))  # on the file's or the given ready_topics
         if frames:
             print(f"[graph] the bag's frames are compressed ({COMPRESSED_FRAMES}): undistort image_transport=compressed, "
                   f"bag_player pace_topic={COMPRESSED_FRAMES}", flush=True)

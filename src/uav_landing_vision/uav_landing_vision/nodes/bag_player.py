@@ -27,8 +27,11 @@ Modes (parameter ``mode``):
 
 Before playing, the player waits (up to ``ready_timeout_s``) until every topic of
 ``ready_topics`` has a subscriber and a publisher and, in paced mode, until ``pace_topic``
-has a subscriber and ``ack_topic`` a publisher; a paced player that is not ready by then
-exits with code 1. ``clock: true`` publishes the bag time on ``/clock`` before each message
+has a subscriber and ``ack_topic`` a publisher; then, for each node of ``ready_nodes``, until
+its ``/diagnostics`` say that each of its links on a ready topic is up (DDS has matched it with
+every peer the node sees: ``LandingNode.links``): the player sees only its own links, and a
+message sent before DDS matched the two ends of another is lost to that peer, so a replay's
+result would hang on discovery times. A paced player that is not ready by then exits with code 1. ``clock: true`` publishes the bag time on ``/clock`` before each message
 (the latest so far: it never goes back) and again at least every ``SPIN_S`` while a paced frame
 waits for its acknowledgement: nodes take ``/clock`` best effort (rclpy's time source), and one
 lost message left a node's clock behind the frames it was given.
@@ -43,16 +46,18 @@ from pathlib import Path
 from typing import Literal
 
 from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.duration import Duration
 from rclpy.qos import ReliabilityPolicy
 from rclpy.serialization import deserialize_message
+from rclpy.validate_node_name import validate_node_name
 from rosbags.rosbag2 import Reader
 from rosgraph_msgs.msg import Clock
 
 from ..config import ConfigError
 from ..sim.bag import BagError, bag_messages, open_bag
 from ..stamps import header_stamp_ns, stamp_fields, stamp_ns
-from .base import LandingNode, run_node
+from .base import LINKS_KEY, LandingNode, parse_links, run_node
 from .participant import IMAGE_TYPES
 from .qos import RELIABLE_QOS, qos_for_type
 
@@ -71,6 +76,7 @@ class BagPlayerConfig:
     ack_type: str = "sensor_msgs/msg/Image"
     ack_timeout_s: float = 10.0
     ready_topics: tuple[str, ...] = ()
+    ready_nodes: tuple[str, ...] = ()  # nodes whose links on ready_topics must be up (their /diagnostics)
     ready_timeout_s: float = 30.0
     ready_settle_s: float = 0.0  # then wait this long for the other processes to match each other
     clock: bool = False
@@ -94,6 +100,12 @@ class BagPlayer(LandingNode):
         super().__init__("bag_player", **kwargs)
         self.config = cfg = self.load_config(BagPlayerConfig)
         self._ready_topics = [_resolved(self, "ready_topics", topic) for topic in cfg.ready_topics]
+        self._node_links = {}  # ready node -> its links from its latest /diagnostics
+        self._diagnostics_sub = None
+        if cfg.ready_nodes:
+            for name in cfg.ready_nodes:
+                _check_node_name(name)
+            self._diagnostics_sub = self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, RELIABLE_QOS)
         self._reader = _open_bag(cfg.bag)
         self._players = {}
         self._played = set()  # ids of the connections whose messages are played
@@ -146,6 +158,16 @@ class BagPlayer(LandingNode):
             create = self.create_image_publisher if type_name in IMAGE_TYPES else self.create_publisher
             self._players[topic] = create(cls, topic, qos_for_type(type_name))
         self._played.add(conn.id)
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            if status.hardware_id not in self.config.ready_nodes:
+                continue
+            text = next((v.value for v in status.values if v.key == LINKS_KEY), None)
+            try:
+                self._node_links[status.hardware_id] = None if text is None else parse_links(text)
+            except ValueError as exc:
+                self.drop(f"/diagnostics of {status.hardware_id}: {exc}")
 
     def _on_ack(self, msg) -> None:
         self._acked.add(stamp_ns(msg.header.stamp))
@@ -245,13 +267,35 @@ class BagPlayer(LandingNode):
                 missing.append(f"subscriber of {pace.topic_name}")
             if self._ack_sub.get_publisher_count() == 0:
                 missing.append(f"publisher of {self._ack_sub.topic_name}")
+        return missing + self._links_down()
+
+    def _links_down(self) -> list[str]:
+        """What :meth:`_missing` lists for ``ready_nodes``: their reports, or their links on a ready topic not up."""
+        missing, ready = [], set(self._ready_topics)
+        for name in self.config.ready_nodes:
+            if name not in self._node_links:
+                missing.append(f"/diagnostics from {name}")
+            elif self._node_links[name] is None:
+                missing.append(f"links in the /diagnostics of {name} (not a node of this graph?)")
+            else:
+                missing += [f"match of {name}'s {'publisher' if kind == 'pub' else 'subscription'} {topic} "
+                            f"with every peer ({matched} of {seen})"
+                            for kind, topic, matched, seen in self._node_links[name]
+                            if topic in ready and not 0 < seen == matched]
         return missing
 
     def _wait_until_ready(self, executor) -> bool:
-        deadline = time.monotonic() + self.config.ready_timeout_s
+        start = time.monotonic()
+        deadline = start + self.config.ready_timeout_s
         while (missing := self._missing()) and time.monotonic() < deadline:
             executor.spin_once(timeout_sec=0.1)
+        if self._diagnostics_sub is not None:  # needed no more
+            self.destroy_subscription(self._diagnostics_sub)
+            self._diagnostics_sub = None
         if not missing:
+            if self._ready_topics or self.config.ready_nodes:
+                self.get_logger().info(f"links up after {time.monotonic() - start:.1f} s "
+                                       f"({len(self._ready_topics)} topics, {len(self.config.ready_nodes)} nodes)")
             _spin_until(executor, time.monotonic() + self.config.ready_settle_s)
             return True
         text = f"not ready after {self.config.ready_timeout_s:g} s: no {', no '.join(missing)}"
@@ -318,6 +362,14 @@ def _resolved(node, key: str, topic: str) -> str:
         return node.resolve_topic_name(topic)
     except RuntimeError as exc:  # rclpy's RCLError
         raise ConfigError(f"{key}: '{topic}' is not a valid topic name: {exc}") from exc
+
+
+def _check_node_name(name: str) -> None:
+    """:class:`ConfigError` naming ``ready_nodes`` if ``name`` is no node name."""
+    try:
+        validate_node_name(name)
+    except Exception as exc:  # rclpy's InvalidNodeNameException, TypeError
+        raise ConfigError(f"ready_nodes: {name!r} is not a node name: {exc}") from exc
 
 
 def _message_class(type_name: str):

@@ -36,6 +36,8 @@ DROP_LOG_PERIOD_S = 1.0  # a kind of drop is logged at most this often
 ROS_PARAMETERS = frozenset({"use_sim_time", "start_type_description_service"})
 # What an executor can raise when Ctrl-C / SIGTERM end a node (see stopped_by_shutdown).
 SHUTDOWN_ERRORS = (KeyboardInterrupt, ExternalShutdownException, RuntimeError)
+LINKS_KEY = "links"  # the /diagnostics value listing the node's links (format_links)
+_UNREPORTED_TOPICS = frozenset({"/rosout", "/parameter_events"})  # rclpy's own, on every node
 
 
 def _descriptor(**fields) -> ParameterDescriptor:
@@ -85,6 +87,19 @@ class LandingNode(Node):
         if self._image_participant is None:
             self._image_participant = ImageParticipant(self)
         return self._image_participant.create_publisher(msg_type, topic, qos)
+
+    def links(self) -> list[tuple[str, str, int, int]]:
+        """Each publisher and subscription of the node (its image participant's too) as
+        ``(kind, topic, matched, seen)``: kind ``pub`` or ``sub``, the peers DDS has matched with
+        it and those the node sees in the graph. A link is up when ``0 < seen == matched``; until
+        then messages sent on it can be lost to a peer (DDS matches each pair of processes apart)."""
+        publishers = list(self.publishers)
+        if self._image_participant is not None:
+            publishers += self._image_participant.node.publishers
+        out = [("pub", p.topic_name, p.get_subscription_count(), self.count_subscribers(p.topic_name))
+               for p in publishers if p.topic_name not in _UNREPORTED_TOPICS]
+        return out + [("sub", s.topic_name, s.get_publisher_count(), self.count_publishers(s.topic_name))
+                      for s in self.subscriptions if s.topic_name not in _UNREPORTED_TOPICS]
 
     def destroy_node(self):
         if self._image_participant is not None:
@@ -192,11 +207,29 @@ class LandingNode(Node):
             message=f"dropped {dropped_now} in the last {DIAGNOSTICS_PERIOD_S:g} s: {self.last_error}" if dropped_now else "ok",
             hardware_id=self.get_name(),
             values=[KeyValue(key=k, value=str(v)) for k, v in sorted(self.counters.items())]
-            + [KeyValue(key="last_error", value=self.last_error)],
+            + [KeyValue(key="last_error", value=self.last_error), KeyValue(key=LINKS_KEY, value=format_links(self.links()))],
         )
         msg = DiagnosticArray(status=[status])
         msg.header.stamp = self.get_clock().now().to_msg()
         self._diagnostics.publish(msg)
+
+
+def format_links(links) -> str:
+    """:meth:`LandingNode.links` as one diagnostics value: ``pub /uav/pose 2/3; sub /camera/image_rect 1/1``."""
+    return "; ".join(f"{kind} {topic} {matched}/{seen}" for kind, topic, matched, seen in links)
+
+
+def parse_links(text: str) -> list[tuple[str, str, int, int]]:
+    """The links of a :func:`format_links` value; ValueError if it is not one."""
+    links = []
+    for item in filter(None, text.split("; ")):
+        parts = item.split(" ")
+        kind, topic, counts = parts if len(parts) == 3 else ("", "", "")
+        matched, _, seen = counts.partition("/")
+        if kind not in ("pub", "sub") or not topic.startswith("/") or not (matched.isdigit() and seen.isdigit()):
+            raise ValueError(f"not a link: {item!r}")
+        links.append((kind, topic, int(matched), int(seen)))
+    return links
 
 
 def run_node(factory, args=None, run=None) -> int:
