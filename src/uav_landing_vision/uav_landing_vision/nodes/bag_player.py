@@ -31,7 +31,8 @@ has a subscriber and ``ack_topic`` a publisher; then, for each node of ``ready_n
 its ``/diagnostics`` say that each of its links on a ready topic is up (DDS has matched it with
 every peer the node sees: ``LandingNode.links``): the player sees only its own links, and a
 message sent before DDS matched the two ends of another is lost to that peer, so a replay's
-result would hang on discovery times. A paced player that is not ready by then exits with code 1. ``clock: true`` publishes the bag time on ``/clock`` before each message
+result would hang on discovery times. A paced player not ready by then exits with code 1.
+``clock: true`` publishes the bag time on ``/clock`` before each message
 (the latest so far: it never goes back) and again at least every ``SPIN_S`` while a paced frame
 waits for its acknowledgement: nodes take ``/clock`` best effort (rclpy's time source), and one
 lost message left a node's clock behind the frames it was given.
