@@ -435,6 +435,35 @@ def test_run_node_exits_0_when_ctrl_c_interrupts_a_message_conversion(ros_domain
     assert run_node(_InterruptedInAConversion, ["--ros-args"]) == 0
 
 
+class _InterruptedByCtrlC(_Probe):
+    """Ctrl-C as rclpy delivers it: KeyboardInterrupt in the main thread at once, the context shut
+    down by rclpy's signal thread a moment later, once it has triggered every executor's guard."""
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.create_timer(0.01, self._interrupt)
+
+    def _interrupt(self):
+        threading.Timer(0.2, self.context.shutdown).start()
+        raise KeyboardInterrupt
+
+
+def test_run_node_tears_down_after_a_ctrl_c_only_once_rclpys_signal_thread_is_done(ros_domain_id, monkeypatch):
+    """The executor's teardown frees the guard condition list the signal thread walks: begun at
+    the KeyboardInterrupt, it crashed the GCS bridge's stop (SIGSEGV on the signal thread)."""
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(ros_domain_id))
+    context_up_at_teardown = []
+    shutdown = SingleThreadedExecutor.shutdown
+
+    def recording_shutdown(executor, *args, **kwargs):
+        context_up_at_teardown.append(executor.context.ok())
+        return shutdown(executor, *args, **kwargs)
+
+    monkeypatch.setattr(SingleThreadedExecutor, "shutdown", recording_shutdown)
+    assert run_node(_InterruptedByCtrlC, ["--ros-args"]) == 0
+    assert context_up_at_teardown == [False]
+
+
 def test_run_node_raises_a_callback_error_while_the_context_stays_up(ros_domain_id, monkeypatch):
     monkeypatch.setenv("ROS_DOMAIN_ID", str(ros_domain_id))
     with pytest.raises(RuntimeError, match="a bug"):

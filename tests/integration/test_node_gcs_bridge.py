@@ -344,8 +344,9 @@ def test_the_ticks_go_on_when_the_system_clock_steps_back(ros_domain_id, ros, ma
     process on a clock set by libfaketime; the monotonic clock untouched): guidance goes on at
     the tick rate, stamped on the new time-line, and the GCS hears the heartbeat again at once.
     With its ticks timed by the system clock, the node fell silent for the hour. The clock is set
-    right again before the node is stopped: stopped an hour back, Fast DDS crashed destroying
-    the node (SIGSEGV) in 6 of 16 runs, set right in none of 16."""
+    right again before the node is stopped: stopped an hour back, it crashed in the teardown of
+    Fast DDS's shared-memory transport (SIGSEGV) in 8 of 16 stops under load, set right in none
+    of 16 (docs/gcs.md)."""
     assert FAKETIME_LIBS, "libfaketime is not installed (make apt)"
     offset = tmp_path / "clock_offset"
     offset.write_text("+0\n")

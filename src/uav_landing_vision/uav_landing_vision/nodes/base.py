@@ -11,6 +11,7 @@ import dataclasses
 import faulthandler
 import signal
 import sys
+import threading
 import time
 from collections import Counter
 
@@ -30,6 +31,7 @@ from .qos import RELIABLE_QOS
 
 DIAGNOSTICS_PERIOD_S = 1.0
 SHUTDOWN_GRACE_S = 1.0  # an error out of the executor is a stop when the context goes down this soon
+SIGNAL_THREAD_LIMIT_S = 5.0  # how long a Ctrl-C waits for rclpy's signal thread before the teardown
 TEARDOWN_LIMIT_S = 5.0  # a node's teardown taking longer has hung: the process ends (run_node)
 DROP_LOG_PERIOD_S = 1.0  # a kind of drop is logged at most this often
 # Parameters every rclpy node declares itself; they are not part of a node's configuration.
@@ -283,16 +285,27 @@ def stopped_by_shutdown(exc: BaseException, context=None) -> bool:
     KeyboardInterrupt that Ctrl-C raises in the main thread: one raised while rclpy converts a
     message comes out of pybind11 as a RuntimeError, with the context still up for a moment. So a
     RuntimeError is a stop when the context goes down within :data:`SHUTDOWN_GRACE_S`.
+
+    A KeyboardInterrupt is a stop; it returns once the context is down too (or after
+    :data:`SIGNAL_THREAD_LIMIT_S`), because the teardown must not begin before: rclpy's signal
+    thread wakes the executor, then goes on through its list of guard conditions to trigger and
+    only then shuts the context down, and the executor's shutdown frees that list and its guard
+    condition. Torn down first, a node crashed on Ctrl-C (SIGSEGV in ``rcl_trigger_guard_condition``
+    on the signal thread).
     """
-    if isinstance(exc, (KeyboardInterrupt, ExternalShutdownException)):
+    if isinstance(exc, ExternalShutdownException):
         return True
-    if not isinstance(exc, RuntimeError):
+    interrupted = isinstance(exc, KeyboardInterrupt)
+    if not (interrupted or isinstance(exc, RuntimeError)):
         return False
-    deadline = time.monotonic() + SHUTDOWN_GRACE_S
+    deadline = time.monotonic() + (SIGNAL_THREAD_LIMIT_S if interrupted else SHUTDOWN_GRACE_S)
+    # A timed wait on an event that is never set, not time.sleep: under libfaketime with the
+    # monotonic clock left real (the bridge's clock-step test), time.sleep fails with EINVAL.
+    pause = threading.Event()
     while rclpy.ok(context=context):
         if time.monotonic() > deadline:
-            return False
-        time.sleep(0.01)
+            return interrupted
+        pause.wait(0.01)
     return True
 
 
